@@ -1,0 +1,60 @@
+"""nanostage: an ultra-high-precision positioning axis with friction, a bit-exact emulation
+of its FPGA PID, ISO 230-2 evaluation, and (to come) sim-to-real gap diagnosis.
+
+Units are SI everywhere and appear in the names (``mass_kg``, ``lead_m``).
+"""
+
+from . import presets
+from ._core import ConfigError, SimulationError, __version__
+from .analysis import StepMetrics, step_metrics
+from .config import (
+    BallScrew,
+    DahlFriction,
+    Encoder,
+    FpgaPid,
+    Fxp,
+    Gearhead,
+    IntegratorOptions,
+    Motor,
+    OutputStage,
+    Plant,
+    StribeckFriction,
+    System,
+    Table,
+)
+from .simulate import (
+    OpenLoopTrace,
+    Trace,
+    simulate,
+    simulate_plant,
+    simulate_step,
+    step_reference,
+)
+
+__all__ = [
+    "BallScrew",
+    "ConfigError",
+    "DahlFriction",
+    "Encoder",
+    "FpgaPid",
+    "Fxp",
+    "Gearhead",
+    "IntegratorOptions",
+    "Motor",
+    "OpenLoopTrace",
+    "OutputStage",
+    "Plant",
+    "SimulationError",
+    "StepMetrics",
+    "StribeckFriction",
+    "System",
+    "Table",
+    "Trace",
+    "__version__",
+    "presets",
+    "simulate",
+    "simulate_plant",
+    "simulate_step",
+    "step_metrics",
+    "step_reference",
+]

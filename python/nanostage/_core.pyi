@@ -1,0 +1,40 @@
+"""Typed stubs of the Rust extension (checked by mypy.stubtest in CI)."""
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+class ConfigError(ValueError):
+    field: str
+    value: str
+    expected: str
+
+class SimulationError(RuntimeError):
+    t_s: float
+    state: list[float]
+
+def simulate_closed_loop(
+    system: Any, reference_m: npt.NDArray[np.float64]
+) -> dict[str, Any]: ...
+def simulate_open_loop(
+    plant: Any,
+    integrator: Any,
+    voltage_v: npt.NDArray[np.float64],
+    sample_period_s: float,
+) -> dict[str, Any]: ...
+def pid_run(
+    controller: Any,
+    reference_counts: npt.NDArray[np.int64],
+    measured_counts: npt.NDArray[np.int64],
+) -> dict[str, Any]: ...
+def fxp_requantize(
+    raw: npt.NDArray[np.int64], frac_in: int, fmt: Any
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]: ...
+def seed_values() -> dict[str, Any]: ...
+def validate_plant(plant: Any) -> None: ...
+def validate_controller(controller: Any) -> None: ...
+def validate_integrator(integrator: Any) -> None: ...
+def validate_io(encoder: Any, output_stage: Any) -> None: ...

@@ -1,0 +1,219 @@
+"""Frozen, keyword-only configuration dataclasses with units in the field names.
+
+Valid ranges are enforced by the Rust core (one definition, in ``rust/src``): a
+:class:`Plant`, :class:`FpgaPid`, :class:`IntegratorOptions` or :class:`System` raises
+:class:`nanostage.ConfigError` naming the field, the value and the valid range when it is
+constructed, before anything runs. The block dataclasses (:class:`Motor`, ...) are checked
+when they are assembled into a :class:`Plant`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from . import _core
+
+Rounding = Literal["truncate", "half_up", "half_even"]
+OverflowMode = Literal["saturate", "wrap"]
+AntiWindup = Literal["none", "clamp", "conditional"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Fxp:
+    """A LabVIEW fixed-point format ⟨signed, word_bits, int_bits⟩ with rounding and overflow.
+
+    ``frac_bits = word_bits - int_bits`` must lie in [-64, 64]; ``word_bits`` in [1, 64]
+    (signed) or [1, 63] (unsigned).
+    """
+
+    signed: bool
+    word_bits: int
+    int_bits: int
+    rounding: Rounding = "half_even"
+    overflow: OverflowMode = "saturate"
+
+    @property
+    def frac_bits(self) -> int:
+        """Fraction bits (``word_bits - int_bits``)."""
+        return self.word_bits - self.int_bits
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain dict (the form the independent reference model takes)."""
+        return {
+            "signed": self.signed,
+            "word_bits": self.word_bits,
+            "int_bits": self.int_bits,
+            "rounding": self.rounding,
+            "overflow": self.overflow,
+        }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Motor:
+    """DC motor: armature circuit and rotor."""
+
+    resistance_ohm: float
+    inductance_h: float
+    torque_constant_nm_per_a: float
+    back_emf_v_s_per_rad: float
+    rotor_inertia_kg_m2: float
+    quasi_static_current: bool = False
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StribeckFriction:
+    """Stribeck torque on the motor shaft, with true stiction up to the static torque."""
+
+    static_torque_nm: float
+    coulomb_torque_nm: float
+    viscous_nm_s_per_rad: float
+    stribeck_velocity_rad_per_s: float
+    stribeck_exponent: float = 2.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Gearhead:
+    """Gearhead: ratio (motor turns per output turn) and efficiency."""
+
+    ratio: float
+    efficiency: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BallScrew:
+    """Ball screw: lead per revolution, efficiency, shaft inertia."""
+
+    lead_m: float
+    efficiency: float
+    inertia_kg_m2: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Table:
+    """Moving table: mass and a constant external force opposing +x."""
+
+    mass_kg: float
+    external_force_n: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DahlFriction:
+    """Dahl friction on the table side: Coulomb force, rest stiffness, shape exponent."""
+
+    coulomb_force_n: float
+    stiffness_n_per_m: float
+    exponent: float = 1.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Plant:
+    """The rigid axis: motor → gearhead → ball screw → table, friction on both sides."""
+
+    motor: Motor
+    motor_friction: StribeckFriction
+    gearhead: Gearhead
+    screw: BallScrew
+    table: Table
+    dahl: DahlFriction
+
+    def __post_init__(self) -> None:
+        _core.validate_plant(self)
+
+    @property
+    def transmission_m_per_rad(self) -> float:
+        """Table travel per motor radian, ``lead / (2π · ratio)``."""
+        import math
+
+        return self.screw.lead_m / (2.0 * math.pi * self.gearhead.ratio)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FpgaPid:
+    """The FPGA position loop (docs/controller.md): gains, formats, range, units, timing.
+
+    Gains are in *output units* per count (P), per count·sample (I) and per count of motion
+    per sample (D, on the measurement with the damping sign). One output unit is
+    ``output_unit_v`` volts at the amplifier input.
+    """
+
+    kp: float
+    ki: float
+    kd: float
+    gain_format: Fxp
+    measurement_format: Fxp
+    error_format: Fxp
+    term_format: Fxp
+    integrator_format: Fxp
+    output_format: Fxp
+    dac_format: Fxp
+    dac_scale_format: Fxp
+    output_min: float
+    output_max: float
+    anti_windup: AntiWindup
+    output_unit_v: float
+    dac_lsb_v: float
+    clock_hz: float = 40e6
+    ticks_per_sample: int = 40_000
+    latency_ticks: int = 0
+
+    def __post_init__(self) -> None:
+        _core.validate_controller(self)
+
+    @property
+    def sample_period_s(self) -> float:
+        """Control period ``ticks_per_sample / clock_hz``."""
+        return self.ticks_per_sample / self.clock_hz
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain dict (formats as dicts), the form the independent reference model takes."""
+        out: dict[str, object] = {}
+        for name in self.__dataclass_fields__:
+            v = getattr(self, name)
+            out[name] = v.to_dict() if isinstance(v, Fxp) else v
+        return out
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Encoder:
+    """Linear incremental encoder: the size of one count."""
+
+    count_m: float = 100e-9
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OutputStage:
+    """Analog output → amplifier: gain and voltage limit."""
+
+    amplifier_gain: float = 1.0
+    amplifier_limit_v: float = 6.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class IntegratorOptions:
+    """RODAS4 options: tolerances, step bounds, event location."""
+
+    rtol: float = 1e-6
+    atol_position_m: float = 1e-11
+    h_init_s: float = 1e-5
+    h_min_s: float = 1e-14
+    h_max_s: float = 1e-3
+    max_steps: int = 100_000
+    event_tol_s: float = 1e-11
+
+    def __post_init__(self) -> None:
+        _core.validate_integrator(self)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class System:
+    """Plant + controller + sensor + output stage + integrator: everything a run needs."""
+
+    plant: Plant
+    controller: FpgaPid
+    encoder: Encoder = field(default_factory=Encoder)
+    output_stage: OutputStage = field(default_factory=OutputStage)
+    integrator: IntegratorOptions = field(default_factory=IntegratorOptions)
+
+    def __post_init__(self) -> None:
+        _core.validate_io(self.encoder, self.output_stage)

@@ -1,0 +1,229 @@
+"""Single runs: the closed loop (plant + FPGA PID) or the plant alone.
+
+Array conventions: every channel is a 1-D ``float64``/``int64``/``bool`` array with one
+entry per control sample ``n`` at ``time_s[n] = n · T``. Plant channels (position, velocity,
+current, friction forces, ``stuck``) are sampled at ``t_n``; controller channels (error,
+P/I/D terms, command, DAC code, flags, ``motor_voltage_v``) are the update computed from the
+sample at ``t_n``, which the plant sees from ``t_n + latency`` on. Positions are positive
+along +x; the error is reference − measurement.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from . import _core
+from .config import IntegratorOptions, Plant, System
+
+__all__ = [
+    "OpenLoopTrace",
+    "Trace",
+    "simulate",
+    "simulate_plant",
+    "simulate_step",
+    "step_reference",
+]
+
+#: Bytes one recorded sample takes (all channels).
+BYTES_PER_SAMPLE = 8 * 18
+#: Most samples the core accepts in one trace.
+MAX_SAMPLES = 1 << 24
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Trace:
+    """A closed-loop run. See the module docstring for when each channel is sampled."""
+
+    time_s: FloatArray
+    reference_m: FloatArray
+    reference_counts: IntArray
+    position_m: FloatArray
+    velocity_m_per_s: FloatArray
+    encoder_counts: IntArray
+    current_a: FloatArray
+    motor_voltage_v: FloatArray
+    command: FloatArray
+    dac_code: IntArray
+    error_counts: FloatArray
+    p_term: FloatArray
+    i_term: FloatArray
+    d_term: FloatArray
+    flags: npt.NDArray[np.uint32]
+    motor_friction_force_n: FloatArray
+    dahl_force_n: FloatArray
+    stuck: BoolArray
+    stats: dict[str, int]
+    count_m: float
+    sample_period_s: float
+    output_unit_v: float
+    amplifier_limit_v: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def encoder_position_m(self) -> FloatArray:
+        """The encoder reading in metres (``encoder_counts · count_m``)."""
+        return self.encoder_counts * self.count_m
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OpenLoopTrace:
+    """The plant driven by a held voltage per sample; ``n + 1`` samples including t = 0."""
+
+    time_s: FloatArray
+    position_m: FloatArray
+    velocity_m_per_s: FloatArray
+    dahl_force_n: FloatArray
+    current_a: FloatArray
+    stuck: BoolArray
+    stats: dict[str, int]
+
+
+def _check_samples(n: int, field_name: str, value: float) -> None:
+    if n < 1 or n > MAX_SAMPLES:
+        raise _core.ConfigError(
+            f"{field_name} = {value} is invalid: expected between 1 and {MAX_SAMPLES} samples "
+            f"(got {n})"
+        )
+    try:
+        avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return
+    need = n * BYTES_PER_SAMPLE
+    if need > avail:
+        raise _core.ConfigError(
+            f"{field_name} = {value} is invalid: its trace needs {need / 2**30:.1f} GiB but "
+            f"{avail / 2**30:.1f} GiB of memory is available"
+        )
+
+
+def step_reference(
+    step_m: float, *, duration_s: float, sample_period_s: float, start_s: float = 0.01
+) -> FloatArray:
+    """A step reference: 0 before ``start_s``, ``step_m`` from then on, one value per sample.
+
+    Parameters
+    ----------
+    step_m : float
+        Step size, m (either sign).
+    duration_s : float
+        Length of the run, s (> 0).
+    sample_period_s : float
+        Control period, s (> 0).
+    start_s : float
+        Time of the step, s (≥ 0).
+
+    Returns
+    -------
+    ndarray, shape (n_samples,)
+        Reference position, m.
+    """
+    for name, v, ok, rng in [
+        ("step_m", step_m, math.isfinite(step_m), "a finite step in m"),
+        ("duration_s", duration_s, math.isfinite(duration_s) and duration_s > 0, "> 0 s"),
+        (
+            "sample_period_s",
+            sample_period_s,
+            math.isfinite(sample_period_s) and sample_period_s > 0,
+            "> 0 s",
+        ),
+        ("start_s", start_s, math.isfinite(start_s) and start_s >= 0, ">= 0 s"),
+    ]:
+        if not ok:
+            raise _core.ConfigError(f"{name} = {v} is invalid: expected {rng}")
+    n = round(duration_s / sample_period_s)
+    _check_samples(n, "duration_s", duration_s)
+    t = np.arange(n) * sample_period_s
+    return np.where(t >= start_s - 1e-12, float(step_m), 0.0)
+
+
+def simulate(system: System, reference_m: npt.ArrayLike) -> Trace:
+    """Run the closed loop over a reference trajectory.
+
+    Parameters
+    ----------
+    system : System
+        Plant, FPGA loop, encoder, output stage and integrator options.
+    reference_m : array_like, shape (n_samples,)
+        Reference position at each control sample, m.
+
+    Returns
+    -------
+    Trace
+        Every channel at every control sample.
+
+    Raises
+    ------
+    ConfigError
+        Invalid configuration or reference (names the field, value and valid range).
+    SimulationError
+        A numerical failure (carries ``t_s`` and ``state``).
+    """
+    ref = np.ascontiguousarray(reference_m, dtype=np.float64)
+    if ref.ndim != 1:
+        raise _core.ConfigError(
+            f"reference_m = array of shape {ref.shape} is invalid: expected a 1-D array"
+        )
+    _check_samples(ref.size, "reference_m (length)", ref.size)
+    out = _core.simulate_closed_loop(system, ref)
+    return Trace(
+        **out,
+        count_m=system.encoder.count_m,
+        sample_period_s=system.controller.sample_period_s,
+        output_unit_v=system.controller.output_unit_v,
+        amplifier_limit_v=system.output_stage.amplifier_limit_v,
+    )
+
+
+def simulate_step(
+    system: System, step_m: float, *, duration_s: float, start_s: float = 0.01
+) -> Trace:
+    """Closed-loop step response (a convenience over :func:`step_reference` + :func:`simulate`).
+
+    Examples
+    --------
+    >>> import nanostage
+    >>> s = nanostage.presets.seed(1e-3)
+    >>> tr = nanostage.simulate_step(s, 1e-3, duration_s=0.5)
+    >>> abs(tr.encoder_counts[-1] - tr.reference_counts[-1]) <= 1
+    True
+    """
+    ref = step_reference(
+        step_m,
+        duration_s=duration_s,
+        sample_period_s=system.controller.sample_period_s,
+        start_s=start_s,
+    )
+    return simulate(system, ref)
+
+
+def simulate_plant(
+    plant: Plant,
+    voltage_v: npt.ArrayLike,
+    *,
+    sample_period_s: float,
+    integrator: IntegratorOptions | None = None,
+) -> OpenLoopTrace:
+    """Drive the plant alone: ``voltage_v[k]`` held on ``[k·T, (k+1)·T)``; starts at rest.
+
+    Returns ``n + 1`` samples at ``t_k = k·T`` (including t = 0).
+    """
+    u = np.ascontiguousarray(voltage_v, dtype=np.float64)
+    if u.ndim != 1:
+        raise _core.ConfigError(
+            f"voltage_v = array of shape {u.shape} is invalid: expected a 1-D array"
+        )
+    _check_samples(u.size, "voltage_v (length)", u.size)
+    out = _core.simulate_open_loop(
+        plant, integrator or IntegratorOptions(), u, float(sample_period_s)
+    )
+    return OpenLoopTrace(**out)

@@ -1,0 +1,31 @@
+//! Numerics: how an [`OdeSystem`] is advanced.
+//!
+//! One method: RODAS4, a 6-stage, order-4(3), L-stable, stiffly accurate Rosenbrock method
+//! (Hairer & Wanner, *Solving ODEs II*, 2nd ed., §IV.7; coefficients of their `rodas.f`).
+//! It is linearly implicit: one Jacobian and one LU factorisation of `I/(h·γ) − J` per step,
+//! no Newton iteration, which suits small stiff systems (friction states with ~27 µs time
+//! constants, the motor's electrical pole) integrated between 1 ms control ticks.
+//! Step size: error-controlled with an embedded order-3 estimate; the integrator steps
+//! exactly to the end of each segment (the input is held constant inside a segment).
+//! State events (a sign change of [`OdeSystem::event`]) end a segment early; they are
+//! located by the Illinois method on the step size.
+
+mod rodas;
+
+pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats};
+
+use nalgebra::{SMatrix, SVector};
+
+/// An autonomous ODE `dy/dt = f(y)` of fixed dimension `N` (inputs are held constant by the
+/// caller over a segment), with an analytic Jacobian and an optional event function.
+pub trait OdeSystem<const N: usize> {
+    /// Right-hand side `f(y)`, written into `dy`.
+    fn rhs(&self, y: &SVector<f64, N>, dy: &mut SVector<f64, N>);
+    /// Jacobian `∂f/∂y`, written into `jac`.
+    fn jacobian(&self, y: &SVector<f64, N>, jac: &mut SMatrix<f64, N, N>);
+    /// Event function. `None` when the system has no event. An event happens where the value
+    /// goes from `≥ 0` at the start of a step to `< 0` at its end.
+    fn event(&self, _y: &SVector<f64, N>) -> Option<f64> {
+        None
+    }
+}

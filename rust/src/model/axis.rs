@@ -1,0 +1,304 @@
+//! The rigid seed axis as a hybrid (stick/slip) ODE.
+use super::params::AxisParams;
+use crate::error::{ConfigError, SimError};
+use crate::integrate::{OdeSystem, Rodas4, SegmentEnd};
+use nalgebra::{SMatrix, SVector};
+
+/// Dimension of the plant state.
+pub const STATE_DIM: usize = 4;
+type State = SVector<f64, STATE_DIM>;
+type Jac = SMatrix<f64, STATE_DIM, STATE_DIM>;
+
+const X: usize = 0;
+const V: usize = 1;
+const Z: usize = 2;
+const I: usize = 3;
+
+/// The discrete mode of the drive train.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Mode {
+    /// Held by the motor-shaft stiction: v = 0 exactly, position frozen.
+    Stuck,
+    /// Slipping in direction `d` (±1); `d` replaces sgn v in the friction laws.
+    Slip(f64),
+}
+
+/// Validated parameters plus the derived constants of the lumped axis.
+#[derive(Debug, Clone, Copy)]
+pub struct Axis {
+    /// The parameters it was built from.
+    pub params: AxisParams,
+    /// Transmission r = P/(2π·N), m per motor radian.
+    pub transmission_m_per_rad: f64,
+    /// Overall efficiency η = η_g·η_s.
+    pub efficiency: f64,
+    /// Equivalent mass at the table m + J_m/r² + J_s·(2π/P)², kg.
+    pub equivalent_mass_kg: f64,
+}
+
+impl Axis {
+    /// Validate the parameters and derive the lumped constants.
+    pub fn new(params: AxisParams) -> Result<Self, ConfigError> {
+        params.validate()?;
+        let r = params.screw.lead_m / (2.0 * std::f64::consts::PI * params.gearhead.ratio);
+        let k = 2.0 * std::f64::consts::PI / params.screw.lead_m;
+        Ok(Self {
+            params,
+            transmission_m_per_rad: r,
+            efficiency: params.gearhead.efficiency * params.screw.efficiency,
+            equivalent_mass_kg: params.table.mass_kg
+                + params.motor.rotor_inertia_kg_m2 / (r * r)
+                + params.screw.inertia_kg_m2 * k * k,
+        })
+    }
+
+    /// Scales mapping `atol_position_m` to each state's absolute tolerance:
+    /// position 1, velocity 1e3/s (one position tolerance per ms), Dahl force σ,
+    /// current the current that produces that force.
+    pub fn state_scales(&self) -> State {
+        let p = &self.params;
+        let force = p.dahl.stiffness_n_per_m;
+        let current = force * self.transmission_m_per_rad
+            / (self.efficiency * p.motor.torque_constant_nm_per_a);
+        State::new(1.0, 1e3, force, current)
+    }
+
+    /// Motor current: the state, or the algebraic value when quasi-static.
+    #[inline]
+    pub fn current(&self, y: &State, u_v: f64) -> f64 {
+        let m = &self.params.motor;
+        if m.quasi_static_current {
+            (u_v - m.back_emf_v_s_per_rad * y[V] / self.transmission_m_per_rad) / m.resistance_ohm
+        } else {
+            y[I]
+        }
+    }
+
+    /// Torque the motor-shaft friction must supply to hold the axis at rest, N·m.
+    #[inline]
+    pub fn holding_torque(&self, y: &State, u_v: f64) -> f64 {
+        let p = &self.params;
+        let i = if p.motor.quasi_static_current {
+            u_v / p.motor.resistance_ohm
+        } else {
+            y[I]
+        };
+        p.motor.torque_constant_nm_per_a * i
+            - self.transmission_m_per_rad * (y[Z] + p.table.external_force_n) / self.efficiency
+    }
+
+    /// Motor friction torque reflected to the table as a force (N), for recording.
+    pub fn motor_friction_force(&self, y: &State, mode: Mode, u_v: f64) -> f64 {
+        let r = self.transmission_m_per_rad;
+        match mode {
+            Mode::Slip(d) => self.efficiency * self.params.motor_friction.torque(y[V] / r, d).0 / r,
+            Mode::Stuck => self.efficiency * self.holding_torque(y, u_v) / r,
+        }
+    }
+}
+
+/// The axis over one segment: a mode and a held voltage. Implements [`OdeSystem`].
+struct Segment<'a> {
+    axis: &'a Axis,
+    mode: Mode,
+    u_v: f64,
+}
+
+impl OdeSystem<STATE_DIM> for Segment<'_> {
+    fn rhs(&self, y: &State, dy: &mut State) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let r = a.transmission_m_per_rad;
+        match self.mode {
+            Mode::Stuck => {
+                dy[X] = 0.0;
+                dy[V] = 0.0;
+                dy[Z] = 0.0;
+                dy[I] = if m.quasi_static_current {
+                    0.0
+                } else {
+                    (self.u_v - m.resistance_ohm * y[I]) / m.inductance_h
+                };
+            }
+            Mode::Slip(d) => {
+                let w = y[V] / r;
+                let (tf, _) = p.motor_friction.torque(w, d);
+                let i = a.current(y, self.u_v);
+                let f_drive = a.efficiency * (m.torque_constant_nm_per_a * i - tf) / r;
+                dy[X] = y[V];
+                dy[V] = (f_drive - y[Z] - p.table.external_force_n) / a.equivalent_mass_kg;
+                dy[Z] = p.dahl.rate(y[V], y[Z], d).0;
+                dy[I] = if m.quasi_static_current {
+                    0.0
+                } else {
+                    (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w)
+                        / m.inductance_h
+                };
+            }
+        }
+    }
+
+    fn jacobian(&self, y: &State, jac: &mut Jac) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let r = a.transmission_m_per_rad;
+        jac.fill(0.0);
+        match self.mode {
+            Mode::Stuck => {
+                if !m.quasi_static_current {
+                    jac[(I, I)] = -m.resistance_ohm / m.inductance_h;
+                }
+            }
+            Mode::Slip(d) => {
+                let w = y[V] / r;
+                let (_, dtf_dw) = p.motor_friction.torque(w, d);
+                let meq = a.equivalent_mass_kg;
+                let kt = m.torque_constant_nm_per_a;
+                let di_dv = if m.quasi_static_current {
+                    -m.back_emf_v_s_per_rad / (r * m.resistance_ohm)
+                } else {
+                    0.0
+                };
+                let df_dv = a.efficiency * (kt * di_dv - dtf_dw / r) / r;
+                jac[(X, V)] = 1.0;
+                jac[(V, V)] = df_dv / meq;
+                jac[(V, Z)] = -1.0 / meq;
+                let (_, dz_dv, dz_dz) = p.dahl.rate(y[V], y[Z], d);
+                jac[(Z, V)] = dz_dv;
+                jac[(Z, Z)] = dz_dz;
+                if !m.quasi_static_current {
+                    jac[(V, I)] = a.efficiency * kt / (r * meq);
+                    jac[(I, V)] = -m.back_emf_v_s_per_rad / (r * m.inductance_h);
+                    jac[(I, I)] = -m.resistance_ohm / m.inductance_h;
+                }
+            }
+        }
+    }
+
+    fn event(&self, y: &State) -> Option<f64> {
+        match self.mode {
+            Mode::Slip(d) => Some(y[V] * d),
+            Mode::Stuck => {
+                if self.axis.params.motor.quasi_static_current {
+                    None
+                } else {
+                    Some(
+                        self.axis.params.motor_friction.static_torque_nm
+                            - self.axis.holding_torque(y, self.u_v).abs(),
+                    )
+                }
+            }
+        }
+    }
+}
+
+/// A running plant: the axis, its state and mode, and the integrator.
+#[derive(Debug, Clone)]
+pub struct Plant {
+    /// The axis.
+    pub axis: Axis,
+    /// Continuous state `[x_m, v_m_per_s, z_n, i_a]`.
+    pub y: State,
+    /// Discrete mode.
+    pub mode: Mode,
+    /// The integrator (keeps its step-size warm start and counters).
+    pub integrator: Rodas4<STATE_DIM>,
+    atol: State,
+}
+
+/// Events at one instant beyond which the mode logic is considered chattering (Zeno guard).
+const MAX_EVENTS_AT_ONE_INSTANT: usize = 4;
+
+impl Plant {
+    /// A plant at rest and stuck at x = 0, z = 0, i = 0.
+    pub fn new(axis: Axis, integrator: Rodas4<STATE_DIM>) -> Self {
+        let atol = axis.state_scales() * integrator.options.atol_position_m;
+        Self {
+            axis,
+            y: State::zeros(),
+            mode: Mode::Stuck,
+            integrator,
+            atol,
+        }
+    }
+
+    /// Motor current at the present state for a held voltage `u_v`.
+    pub fn current(&self, u_v: f64) -> f64 {
+        self.axis.current(&self.y, u_v)
+    }
+
+    /// Break away from stiction if the holding torque exceeds the static torque.
+    fn try_breakaway(&mut self, u_v: f64) {
+        if self.mode == Mode::Stuck {
+            let t_req = self.axis.holding_torque(&self.y, u_v);
+            if t_req.abs() > self.axis.params.motor_friction.static_torque_nm {
+                self.mode = Mode::Slip(t_req.signum());
+            }
+        }
+    }
+
+    /// Advance from `t0` to `t1` with the voltage `u_v` held, handling stick/slip events.
+    pub fn advance(&mut self, u_v: f64, t0: f64, t1: f64) -> Result<(), SimError> {
+        let mut t = t0;
+        let mut events_here = 0usize;
+        let mut t_last_event = f64::NEG_INFINITY;
+        loop {
+            if events_here < MAX_EVENTS_AT_ONE_INSTANT {
+                self.try_breakaway(u_v);
+            }
+            if self.mode == Mode::Stuck && self.axis.params.motor.quasi_static_current {
+                // Nothing moves and the current is algebraic: exact, no work.
+                return Ok(());
+            }
+            let seg = Segment {
+                axis: &self.axis,
+                mode: self.mode,
+                u_v,
+            };
+            match self
+                .integrator
+                .integrate(&seg, t, t1, &mut self.y, &self.atol)?
+            {
+                SegmentEnd::Reached => return Ok(()),
+                SegmentEnd::Event { t_s } => {
+                    if t_s - t_last_event <= self.integrator.options.event_tol_s {
+                        events_here += 1;
+                    } else {
+                        events_here = 0;
+                    }
+                    t_last_event = t_s;
+                    t = t_s;
+                    match self.mode {
+                        Mode::Slip(d) => {
+                            self.y[V] = 0.0;
+                            let t_req = self.axis.holding_torque(&self.y, u_v);
+                            let ts = self.axis.params.motor_friction.static_torque_nm;
+                            self.mode =
+                                if t_req.abs() <= ts || events_here >= MAX_EVENTS_AT_ONE_INSTANT {
+                                    Mode::Stuck
+                                } else if t_req.signum() == d {
+                                    // Net torque still pushes along d although v reached 0
+                                    // (numerically at the event): continue along d.
+                                    Mode::Slip(d)
+                                } else {
+                                    Mode::Slip(-d)
+                                };
+                        }
+                        Mode::Stuck => {
+                            let t_req = self.axis.holding_torque(&self.y, u_v);
+                            self.mode = Mode::Slip(t_req.signum());
+                        }
+                    }
+                    if !self.y.iter().all(|v| v.is_finite()) {
+                        return Err(SimError::NonFinite {
+                            t_s: t,
+                            state: self.y.iter().copied().collect(),
+                        });
+                    }
+                }
+            }
+        }
+    }
+}
