@@ -388,7 +388,7 @@ def run(cfg: dict, reference_counts: list[int], measured_counts: list[int]) -> d
         raise ValueError("reference_counts and measured_counts differ in length")
     pid = ReferencePid(cfg)
     out: dict[str, list] = {key: [] for key in STEP_KEYS}
-    for r, y in zip(reference_counts, measured_counts):
+    for r, y in zip(reference_counts, measured_counts, strict=True):
         res = pid.step(r, y)
         for key in STEP_KEYS:
             out[key].append(res[key])

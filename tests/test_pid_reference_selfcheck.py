@@ -615,7 +615,7 @@ def test_run_equals_steps_and_reset():
     pid.step(100, 7)  # dirty the state, then reset
     pid.step(-50, 30)
     pid.reset()
-    for n, (rn, yn) in enumerate(zip(r, y)):
+    for n, (rn, yn) in enumerate(zip(r, y, strict=True)):
         res = pid.step(rn, yn)
         for key, values in out.items():
             assert res[key] == values[n], (n, key)

@@ -5,6 +5,21 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+__all__ = [
+    "ConfigError",
+    "SimulationError",
+    "__version__",
+    "fxp_requantize",
+    "pid_run",
+    "seed_values",
+    "simulate_closed_loop",
+    "simulate_open_loop",
+    "validate_controller",
+    "validate_integrator",
+    "validate_io",
+    "validate_plant",
+]
+
 __version__: str
 
 class ConfigError(ValueError):
@@ -16,9 +31,7 @@ class SimulationError(RuntimeError):
     t_s: float
     state: list[float]
 
-def simulate_closed_loop(
-    system: Any, reference_m: npt.NDArray[np.float64]
-) -> dict[str, Any]: ...
+def simulate_closed_loop(system: Any, reference_m: npt.NDArray[np.float64]) -> dict[str, Any]: ...
 def simulate_open_loop(
     plant: Any,
     integrator: Any,

@@ -43,42 +43,120 @@ class Provenance:
 _P = Provenance
 #: Unit, source and confidence of every seed value, keyed by dotted field path.
 SEED_PROVENANCE: dict[str, Provenance] = {
-    "plant.motor.resistance_ohm": _P(unit="Ω", source="DOMAIN §4.1 (≈3.4 Ω recalled, 3–4 Ω)", confidence="U"),
-    "plant.motor.inductance_h": _P(unit="H", source="DOMAIN §4.1, sister SR motors 70–110 µH", confidence="U"),
-    "plant.motor.torque_constant_nm_per_a": _P(unit="N·m/A", source="DOMAIN §4.1: k_M = k_E in SI", confidence="I"),
-    "plant.motor.back_emf_v_s_per_rad": _P(unit="V·s/rad", source="DOMAIN §4.1: ≈ U_N/n₀ = 6 V / 900.6 rad/s", confidence="I"),
-    "plant.motor.rotor_inertia_kg_m2": _P(unit="kg·m²", source="DOMAIN §4.1: 0.8–1.2 g·cm²", confidence="U"),
-    "plant.motor.quasi_static_current": _P(unit="-", source="modelling choice: the electrical pole L/R ≈ 21 µs is integrated", confidence="I"),
-    "plant.motor_friction.static_torque_nm": _P(unit="N·m", source="assumed 1.2 × Coulomb torque (no datasheet value)", confidence="U"),
-    "plant.motor_friction.coulomb_torque_nm": _P(unit="N·m", source="DOMAIN §4.1: friction torque MR ≈ 0.1 mN·m", confidence="U"),
-    "plant.motor_friction.viscous_nm_s_per_rad": _P(unit="N·m·s/rad", source="DOMAIN §3.1: (k_M·I₀ − MR)/ω₀ with I₀ ≈ 0.018 A", confidence="U"),
-    "plant.motor_friction.stribeck_velocity_rad_per_s": _P(unit="rad/s", source="assumed (≈ 0.1 mm/s at the table)", confidence="U"),
-    "plant.motor_friction.stribeck_exponent": _P(unit="-", source="DOMAIN §3.1: δ = 2 common", confidence="K"),
+    "plant.motor.resistance_ohm": _P(
+        unit="Ω", source="DOMAIN §4.1 (≈3.4 Ω recalled, 3–4 Ω)", confidence="U"
+    ),
+    "plant.motor.inductance_h": _P(
+        unit="H", source="DOMAIN §4.1, sister SR motors 70–110 µH", confidence="U"
+    ),
+    "plant.motor.torque_constant_nm_per_a": _P(
+        unit="N·m/A", source="DOMAIN §4.1: k_M = k_E in SI", confidence="I"
+    ),
+    "plant.motor.back_emf_v_s_per_rad": _P(
+        unit="V·s/rad", source="DOMAIN §4.1: ≈ U_N/n₀ = 6 V / 900.6 rad/s", confidence="I"
+    ),
+    "plant.motor.rotor_inertia_kg_m2": _P(
+        unit="kg·m²", source="DOMAIN §4.1: 0.8–1.2 g·cm²", confidence="U"
+    ),
+    "plant.motor.quasi_static_current": _P(
+        unit="-",
+        source="modelling choice: the electrical pole L/R ≈ 21 µs is integrated",
+        confidence="I",
+    ),
+    "plant.motor_friction.static_torque_nm": _P(
+        unit="N·m", source="assumed 1.2 × Coulomb torque (no datasheet value)", confidence="U"
+    ),
+    "plant.motor_friction.coulomb_torque_nm": _P(
+        unit="N·m", source="DOMAIN §4.1: friction torque MR ≈ 0.1 mN·m", confidence="U"
+    ),
+    "plant.motor_friction.viscous_nm_s_per_rad": _P(
+        unit="N·m·s/rad", source="DOMAIN §3.1: (k_M·I₀ − MR)/ω₀ with I₀ ≈ 0.018 A", confidence="U"
+    ),
+    "plant.motor_friction.stribeck_velocity_rad_per_s": _P(
+        unit="rad/s", source="assumed (≈ 0.1 mm/s at the table)", confidence="U"
+    ),
+    "plant.motor_friction.stribeck_exponent": _P(
+        unit="-", source="DOMAIN §3.1: δ = 2 common", confidence="K"
+    ),
     "plant.gearhead.ratio": _P(unit="-", source="seed paper: 19:1", confidence="B"),
-    "plant.gearhead.efficiency": _P(unit="-", source="DOMAIN §4.2: 2-stage planetary ≈ 0.8", confidence="U"),
+    "plant.gearhead.efficiency": _P(
+        unit="-", source="DOMAIN §4.2: 2-stage planetary ≈ 0.8", confidence="U"
+    ),
     "plant.screw.lead_m": _P(unit="m", source="seed paper: lead 2 mm", confidence="B"),
     "plant.screw.efficiency": _P(unit="-", source="DOMAIN §4.4: practical ≈ 0.9", confidence="U"),
-    "plant.screw.inertia_kg_m2": _P(unit="kg·m²", source="Ø6 × 100 mm steel shaft: m r²/2 ≈ 1e-7", confidence="I"),
-    "plant.table.mass_kg": _P(unit="kg", source="DOMAIN §4.3: table/carriage ≲ 1 kg", confidence="U"),
-    "plant.table.external_force_n": _P(unit="N", source="horizontal axis, no cable force modelled", confidence="U"),
-    "plant.dahl.coulomb_force_n": _P(unit="N", source="seed paper: Fc = 30.4 N (motor current at constant velocity)", confidence="B"),
-    "plant.dahl.stiffness_n_per_m": _P(unit="N/m", source="seed paper prints σ = 75 'N/m'; only 75 N/µm is plausible (presliding Fc/σ ≈ 0.4 µm), DOMAIN §3.2", confidence="I"),
+    "plant.screw.inertia_kg_m2": _P(
+        unit="kg·m²", source="Ø6 × 100 mm steel shaft: m r²/2 ≈ 1e-7", confidence="I"
+    ),
+    "plant.table.mass_kg": _P(
+        unit="kg", source="DOMAIN §4.3: table/carriage ≲ 1 kg", confidence="U"
+    ),
+    "plant.table.external_force_n": _P(
+        unit="N", source="horizontal axis, no cable force modelled", confidence="U"
+    ),
+    "plant.dahl.coulomb_force_n": _P(
+        unit="N",
+        source="seed paper: Fc = 30.4 N (motor current at constant velocity)",
+        confidence="B",
+    ),
+    "plant.dahl.stiffness_n_per_m": _P(
+        unit="N/m",
+        source="seed paper prints σ = 75 'N/m'; only 75 N/µm is plausible (presliding Fc/σ ≈ 0.4 µm), DOMAIN §3.2",
+        confidence="I",
+    ),
     "plant.dahl.exponent": _P(unit="-", source="seed paper: n = 1", confidence="B"),
-    "encoder.count_m": _P(unit="m", source="seed paper: Heidenhain encoder, 100 nm resolution", confidence="B"),
-    "output_stage.amplifier_gain": _P(unit="V/V", source="assumed unity-gain linear amplifier", confidence="U"),
-    "output_stage.amplifier_limit_v": _P(unit="V", source="seed paper: motor nominal voltage 6 V", confidence="B"),
+    "encoder.count_m": _P(
+        unit="m", source="seed paper: Heidenhain encoder, 100 nm resolution", confidence="B"
+    ),
+    "output_stage.amplifier_gain": _P(
+        unit="V/V", source="assumed unity-gain linear amplifier", confidence="U"
+    ),
+    "output_stage.amplifier_limit_v": _P(
+        unit="V", source="seed paper: motor nominal voltage 6 V", confidence="B"
+    ),
     "controller.kp": _P(unit="output units/count", source="seed paper Table 1", confidence="B"),
-    "controller.ki": _P(unit="output units/(count·sample)", source="seed paper Table 1", confidence="B"),
-    "controller.kd": _P(unit="output units/count", source="seed paper Table 1 (damping sign, DOMAIN §2.3)", confidence="B"),
-    "controller.output_unit_v": _P(unit="V", source="chosen: 0.1 mV per unit (≡ e in µm, u in mV); with 1 mV or 1 DAC LSB the Table 1 gains limit-cycle (DOMAIN §2.3; checked with this model, see README)", confidence="I"),
-    "controller.dac_lsb_v": _P(unit="V", source="16-bit ±10 V analog output: 20 V / 65536 (NI 9263)", confidence="K"),
-    "controller.output_min": _P(unit="output units", source="−6 V / 0.1 mV: the amplifier limit", confidence="I"),
-    "controller.output_max": _P(unit="output units", source="+6 V / 0.1 mV: the amplifier limit", confidence="I"),
-    "controller.anti_windup": _P(unit="-", source="conditional integration: without anti-windup the 10 mm step overshoots by mm (DOMAIN §2.3)", confidence="U"),
-    "controller.clock_hz": _P(unit="Hz", source="NI FPGA default 40 MHz top-level clock (DOMAIN §2.5)", confidence="K"),
-    "controller.ticks_per_sample": _P(unit="ticks", source="T = 1 ms (seed paper) at 40 MHz", confidence="B"),
-    "controller.latency_ticks": _P(unit="ticks", source="schedule: latch 1 + error 1 + multiply 2 + integrate 1 + sum/saturate 2 + DAC scale 2 + AO write 1 = 10 ticks, plus ≈3 µs AO conversion (120 ticks)", confidence="U"),
-    "controller.formats": _P(unit="-", source="custom FPGA PID (Kp = 450 does not fit NI's Q8.8 gains, DOMAIN §2.3): gains ⟨s,24,16⟩, counter ⟨s,32,32⟩ wrap, error ⟨s,32,32⟩, terms and integrator ⟨s,48,40⟩, output ⟨s,32,24⟩, DAC ⟨s,16,16⟩, all saturating, round half even", confidence="U"),
+    "controller.ki": _P(
+        unit="output units/(count·sample)", source="seed paper Table 1", confidence="B"
+    ),
+    "controller.kd": _P(
+        unit="output units/count",
+        source="seed paper Table 1 (damping sign, DOMAIN §2.3)",
+        confidence="B",
+    ),
+    "controller.output_unit_v": _P(
+        unit="V",
+        source="chosen: 0.1 mV per unit (≡ e in µm, u in mV); with 1 mV or 1 DAC LSB the Table 1 gains limit-cycle (DOMAIN §2.3; checked with this model, see README)",
+        confidence="I",
+    ),
+    "controller.dac_lsb_v": _P(
+        unit="V", source="16-bit ±10 V analog output: 20 V / 65536 (NI 9263)", confidence="K"
+    ),
+    "controller.output_min": _P(
+        unit="output units", source="−6 V / 0.1 mV: the amplifier limit", confidence="I"
+    ),
+    "controller.output_max": _P(
+        unit="output units", source="+6 V / 0.1 mV: the amplifier limit", confidence="I"
+    ),
+    "controller.anti_windup": _P(
+        unit="-",
+        source="conditional integration: without anti-windup the 10 mm step overshoots by mm (DOMAIN §2.3)",
+        confidence="U",
+    ),
+    "controller.clock_hz": _P(
+        unit="Hz", source="NI FPGA default 40 MHz top-level clock (DOMAIN §2.5)", confidence="K"
+    ),
+    "controller.ticks_per_sample": _P(
+        unit="ticks", source="T = 1 ms (seed paper) at 40 MHz", confidence="B"
+    ),
+    "controller.latency_ticks": _P(
+        unit="ticks",
+        source="schedule: latch 1 + error 1 + multiply 2 + integrate 1 + sum/saturate 2 + DAC scale 2 + AO write 1 = 10 ticks, plus ≈3 µs AO conversion (120 ticks)",
+        confidence="U",
+    ),
+    "controller.formats": _P(
+        unit="-",
+        source="custom FPGA PID (Kp = 450 does not fit NI's Q8.8 gains, DOMAIN §2.3): gains ⟨s,24,16⟩, counter ⟨s,32,32⟩ wrap, error ⟨s,32,32⟩, terms and integrator ⟨s,48,40⟩, output ⟨s,32,24⟩, DAC ⟨s,16,16⟩, all saturating, round half even",
+        confidence="U",
+    ),
 }
 
 
@@ -95,7 +173,9 @@ def table1_gains(step_m: float) -> tuple[float, float, float]:
         Step size, m (100 µm, 500 µm, 1 mm and 10 mm are the table's rows).
     """
     if not (math.isfinite(step_m) and step_m != 0.0):
-        raise _core.ConfigError(f"step_m = {step_m} is invalid: expected a finite non-zero step in m")
+        raise _core.ConfigError(
+            f"step_m = {step_m} is invalid: expected a finite non-zero step in m"
+        )
     rows: dict[float, tuple[float, float, float]] = _core.seed_values()["table1_gains"]
     best = min(rows, key=lambda s: abs(math.log(s) - math.log(abs(step_m))))
     return rows[best]

@@ -72,7 +72,8 @@ class Trace:
     @property
     def encoder_position_m(self) -> FloatArray:
         """The encoder reading in metres (``encoder_counts · count_m``)."""
-        return self.encoder_counts * self.count_m
+        out: FloatArray = self.encoder_counts.astype(np.float64) * self.count_m
+        return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -143,7 +144,8 @@ def step_reference(
     n = round(duration_s / sample_period_s)
     _check_samples(n, "duration_s", duration_s)
     t = np.arange(n) * sample_period_s
-    return np.where(t >= start_s - 1e-12, float(step_m), 0.0)
+    out: FloatArray = np.where(t >= start_s - 1e-12, float(step_m), 0.0).astype(np.float64)
+    return out
 
 
 def simulate(system: System, reference_m: npt.ArrayLike) -> Trace:

@@ -118,8 +118,8 @@ impl FxpFormat {
                 self.int_bits,
                 format!(
                     "word_bits − int_bits in [−64, 64], i.e. int_bits in [{}, {}]",
-                    self.word_bits as i32 - 64,
-                    self.word_bits as i32 + 64
+                    (self.word_bits as i32).wrapping_sub(64),
+                    (self.word_bits as i32).wrapping_add(64)
                 ),
             ));
         }
@@ -273,7 +273,7 @@ impl Exact {
 
     /// Exact product (fraction bits add). Callers guarantee the width bound (see
     /// [`check_exact_width`]).
-    pub fn mul(self, o: Self) -> Self {
+    pub fn mul_exact(self, o: Self) -> Self {
         Self {
             raw: self.raw.wrapping_mul(o.raw),
             frac: self.frac.wrapping_add(o.frac),
@@ -281,7 +281,7 @@ impl Exact {
     }
 
     /// Exact negation.
-    pub fn neg(self) -> Self {
+    pub fn neg_exact(self) -> Self {
         Self {
             raw: self.raw.wrapping_neg(),
             frac: self.frac,
@@ -289,7 +289,7 @@ impl Exact {
     }
 
     /// Exact sum, aligned to the larger fraction.
-    pub fn add(self, o: Self) -> Self {
+    pub fn add_exact(self, o: Self) -> Self {
         let f = self.frac.max(o.frac);
         Self {
             raw: self.align(f).wrapping_add(o.align(f)),

@@ -245,23 +245,23 @@ impl Pid {
         let y_prev = self.y_prev.unwrap_or(y);
         let (e, o) = c
             .error_format
-            .requantize(Exact::int(r_counts).add(y_ex.neg()));
+            .requantize(Exact::int(r_counts).add_exact(y_ex.neg_exact()));
         fl |= if o { E_OVERFLOW } else { 0 };
         let (dy, o) = c
             .error_format
-            .requantize(y_ex.add(c.measurement_format.exact(y_prev).neg()));
+            .requantize(y_ex.add_exact(c.measurement_format.exact(y_prev).neg_exact()));
         fl |= if o { D_OVERFLOW } else { 0 };
         let e_ex = c.error_format.exact(e);
-        let (p, o) = c.term_format.requantize(self.kp.mul(e_ex));
+        let (p, o) = c.term_format.requantize(self.kp.mul_exact(e_ex));
         fl |= if o { P_OVERFLOW } else { 0 };
         let (d, o) = c
             .term_format
-            .requantize(self.kd.mul(c.error_format.exact(dy)).neg());
+            .requantize(self.kd.mul_exact(c.error_format.exact(dy)).neg_exact());
         fl |= if o { D_OVERFLOW } else { 0 };
-        let inc = self.ki.mul(e_ex);
+        let inc = self.ki.mul_exact(e_ex);
         let (cand, o) = c
             .integrator_format
-            .requantize(c.integrator_format.exact(self.acc).add(inc));
+            .requantize(c.integrator_format.exact(self.acc).add_exact(inc));
         fl |= if o { I_OVERFLOW } else { 0 };
         let p_ex = c.term_format.exact(p);
         let d_ex = c.term_format.exact(d);
@@ -280,7 +280,7 @@ impl Pid {
                 }
             }
             AntiWindup::Conditional => {
-                let trial = p_ex.add(cand_ex).add(d_ex);
+                let trial = p_ex.add_exact(cand_ex).add_exact(d_ex);
                 let zero = Exact::int(0);
                 let above = trial.cmp_value(self.out_max) == Ordering::Greater
                     && inc.cmp_value(zero) == Ordering::Greater;
@@ -296,7 +296,7 @@ impl Pid {
         };
         self.acc = acc;
         self.y_prev = Some(y);
-        let sum = p_ex.add(c.integrator_format.exact(acc)).add(d_ex);
+        let sum = p_ex.add_exact(c.integrator_format.exact(acc)).add_exact(d_ex);
         let (mut u, o) = c.output_format.requantize(sum);
         fl |= if o { U_OVERFLOW } else { 0 };
         let u_ex = c.output_format.exact(u);
@@ -309,7 +309,7 @@ impl Pid {
         }
         let (code, o) = c
             .dac_format
-            .requantize(c.output_format.exact(u).mul(self.dac_scale));
+            .requantize(c.output_format.exact(u).mul_exact(self.dac_scale));
         fl |= if o { DAC_OVERFLOW } else { 0 };
         PidOutput {
             e,

@@ -32,7 +32,8 @@ pub struct Axis {
     pub transmission_m_per_rad: f64,
     /// Overall efficiency η = η_g·η_s.
     pub efficiency: f64,
-    /// Equivalent mass at the table m + J_m/r² + J_s·(2π/P)², kg.
+    /// Equivalent mass at the table m + η·J_m/r² + η_s·J_s·(2π/P)², kg (forward efficiency
+    /// also scales the reflected inertias; docs/model.md).
     pub equivalent_mass_kg: f64,
 }
 
@@ -42,13 +43,14 @@ impl Axis {
         params.validate()?;
         let r = params.screw.lead_m / (2.0 * std::f64::consts::PI * params.gearhead.ratio);
         let k = 2.0 * std::f64::consts::PI / params.screw.lead_m;
+        let eta = params.gearhead.efficiency * params.screw.efficiency;
         Ok(Self {
             params,
             transmission_m_per_rad: r,
-            efficiency: params.gearhead.efficiency * params.screw.efficiency,
+            efficiency: eta,
             equivalent_mass_kg: params.table.mass_kg
-                + params.motor.rotor_inertia_kg_m2 / (r * r)
-                + params.screw.inertia_kg_m2 * k * k,
+                + eta * params.motor.rotor_inertia_kg_m2 / (r * r)
+                + params.screw.efficiency * params.screw.inertia_kg_m2 * k * k,
         })
     }
 

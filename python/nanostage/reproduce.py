@@ -1,0 +1,128 @@
+"""``nanostage reproduce``: the paper's four step experiments with the Table 1 gains."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import presets
+from .analysis import StepMetrics, step_metrics
+from .config import Plant
+from .simulate import Trace, simulate_step
+
+#: (step size, simulated duration) of the paper's experiments.
+EXPERIMENTS_M_S: tuple[tuple[float, float], ...] = (
+    (100e-6, 0.5),
+    (500e-6, 0.5),
+    (1e-3, 0.6),
+    (10e-3, 1.5),
+)
+
+
+def slew_velocity_m_per_s(plant: Plant, voltage_v: float) -> float:
+    """Table speed of the constant-slope ramp at the voltage limit, from the force balance.
+
+    At steady sliding the Dahl force has reached Fc, the current is (V − k_e·ω)/R, and
+    η·(k_t·i − T_c − b·ω)/r = F_c + F_ext (the Stribeck term has decayed at these speeds), so
+    ω = (k_t·V/R − T_c − r·(F_c + F_ext)/η) / (k_t·k_e/R + b) and v = r·ω.
+    """
+    m = plant.motor
+    f = plant.motor_friction
+    r = plant.transmission_m_per_rad
+    eta = plant.gearhead.efficiency * plant.screw.efficiency
+    load = r * (plant.dahl.coulomb_force_n + plant.table.external_force_n) / eta
+    drive = m.torque_constant_nm_per_a * voltage_v / m.resistance_ohm
+    damping = m.torque_constant_nm_per_a * m.back_emf_v_s_per_rad / m.resistance_ohm
+    w = (drive - f.coulomb_torque_nm - load) / (damping + f.viscous_nm_s_per_rad)
+    return r * w
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Experiment:
+    """One reproduced step: its gains, trace and figures."""
+
+    step_m: float
+    gains: tuple[float, float, float]
+    trace: Trace
+    metrics: StepMetrics
+
+
+def run_experiments() -> list[Experiment]:
+    """Simulate the four Table 1 steps on the seed axis."""
+    out = []
+    for step, duration in EXPERIMENTS_M_S:
+        system = presets.seed(step)
+        tr = simulate_step(system, step, duration_s=duration)
+        c = system.controller
+        out.append(
+            Experiment(step_m=step, gains=(c.kp, c.ki, c.kd), trace=tr, metrics=step_metrics(tr))
+        )
+    return out
+
+
+def _fmt(v: float, scale: float, digits: int = 1) -> str:
+    return "—" if math.isnan(v) else f"{v * scale:.{digits}f}"
+
+
+def table(exps: list[Experiment]) -> str:
+    """The response figures as a Markdown table."""
+    rows = [
+        "| step | Kp, Ki, Kd | rise 10–90 % [ms] | overshoot [µm] | settling ±1 count [ms] "
+        "| final error [nm] | max speed [mm/s] | at voltage limit [ms] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for e in exps:
+        m = e.metrics
+        rows.append(
+            f"| {e.step_m * 1e6:.0f} µm | {e.gains[0]:g}, {e.gains[1]:g}, {e.gains[2]:g} "
+            f"| {_fmt(m.rise_time_s, 1e3)} | {_fmt(m.overshoot_m, 1e6)} "
+            f"| {_fmt(m.settling_time_s, 1e3, 0)} | {_fmt(m.final_error_m, 1e9)} "
+            f"| {_fmt(m.max_velocity_m_per_s, 1e3, 2)} "
+            f"| {_fmt(m.time_at_voltage_limit_s, 1e3, 0)} |"
+        )
+    return "\n".join(rows)
+
+
+def reproduce(out_dir: str | Path, *, plot: bool = True) -> dict[str, object]:
+    """Run the experiments, write ``summary.json`` (and ``steps.png``), return the summary."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    exps = run_experiments()
+    compute_s = time.perf_counter() - t0
+    system = presets.seed()
+    v_lim = system.output_stage.amplifier_limit_v
+    v_slew = slew_velocity_m_per_s(system.plant, v_lim)
+    summary: dict[str, object] = {
+        "steps": [
+            {
+                **e.metrics.to_dict(),
+                "kp": e.gains[0],
+                "ki": e.gains[1],
+                "kd": e.gains[2],
+                "integrator_stats": e.trace.stats,
+            }
+            for e in exps
+        ],
+        "slew_at_voltage_limit": {
+            "voltage_v": v_lim,
+            "predicted_velocity_m_per_s": v_slew,
+            "explanation": slew_velocity_m_per_s.__doc__,
+        },
+        "compute_time_s": compute_s,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    if plot:
+        from .plotting import plot_steps
+
+        pick = [e for e in exps if e.step_m in (100e-6, 1e-3)]
+        plot_steps(
+            [e.trace for e in pick],
+            [f"{e.step_m * 1e6:.0f} µm step, (Kp, Ki, Kd) = {e.gains}" for e in pick],
+            out / "steps.png",
+        )
+    summary["table_markdown"] = table(exps)
+    return summary
