@@ -296,7 +296,9 @@ impl Pid {
         };
         self.acc = acc;
         self.y_prev = Some(y);
-        let sum = p_ex.add_exact(c.integrator_format.exact(acc)).add_exact(d_ex);
+        let sum = p_ex
+            .add_exact(c.integrator_format.exact(acc))
+            .add_exact(d_ex);
         let (mut u, o) = c.output_format.requantize(sum);
         fl |= if o { U_OVERFLOW } else { 0 };
         let u_ex = c.output_format.exact(u);
