@@ -241,6 +241,46 @@ impl Plant {
         }
     }
 
+    /// While stuck, advance the motor current exactly over at most `dt` seconds:
+    /// `i(t) = u/R + (i0 − u/R)·exp(−R·t/L)` (nothing else moves). Returns the time to
+    /// breakaway if the holding torque reaches the static torque within `dt` (the current is
+    /// then left exactly at the breakaway value), `None` otherwise.
+    fn stuck_current(&mut self, u_v: f64, dt: f64) -> Option<f64> {
+        let p = &self.axis.params;
+        let m = &p.motor;
+        if m.quasi_static_current {
+            return None;
+        }
+        let i_inf = u_v / m.resistance_ohm;
+        let i0 = self.y[I];
+        let rate = m.resistance_ohm / m.inductance_h;
+        let kt = m.torque_constant_nm_per_a;
+        let load = self.axis.transmission_m_per_rad * (self.y[Z] + p.table.external_force_n)
+            / self.axis.efficiency;
+        let ts = p.motor_friction.static_torque_nm;
+        let t_final = kt * i_inf - load;
+        if t_final.abs() > ts && i0 != i_inf {
+            // The current that puts the holding torque just past the static limit (a relative
+            // margin of 1e-12 so that the slip starts with a strictly positive acceleration).
+            let margin = 1e-12
+                * (ts
+                    + self.axis.transmission_m_per_rad
+                        * (p.dahl.coulomb_force_n + p.table.external_force_n.abs())
+                        / self.axis.efficiency);
+            let i_star = (load + (ts + margin) * t_final.signum()) / kt;
+            let ratio = (i_star - i_inf) / (i0 - i_inf);
+            if ratio > 0.0 && ratio <= 1.0 {
+                let t_star = -ratio.ln() / rate;
+                if t_star <= dt {
+                    self.y[I] = i_star;
+                    return Some(t_star);
+                }
+            }
+        }
+        self.y[I] = i_inf + (i0 - i_inf) * (-rate * dt).exp();
+        None
+    }
+
     /// Advance from `t0` to `t1` with the voltage `u_v` held, handling stick/slip events.
     pub fn advance(&mut self, u_v: f64, t0: f64, t1: f64) -> Result<(), SimError> {
         let mut t = t0;
@@ -250,9 +290,17 @@ impl Plant {
             if events_here < MAX_EVENTS_AT_ONE_INSTANT {
                 self.try_breakaway(u_v);
             }
-            if self.mode == Mode::Stuck && self.axis.params.motor.quasi_static_current {
-                // Nothing moves and the current is algebraic: exact, no work.
-                return Ok(());
+            if self.mode == Mode::Stuck {
+                // Nothing moves; the current is algebraic or a first-order lag solved exactly.
+                match self.stuck_current(u_v, t1 - t) {
+                    None => return Ok(()),
+                    Some(dt) => {
+                        t += dt;
+                        let t_req = self.axis.holding_torque(&self.y, u_v);
+                        self.mode = Mode::Slip(t_req.signum());
+                        continue;
+                    }
+                }
             }
             let seg = Segment {
                 axis: &self.axis,
