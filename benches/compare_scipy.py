@@ -84,7 +84,7 @@ def timed(fn, repeats: int) -> tuple[float, np.ndarray]:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--duration", type=float, default=0.3, help="simulated seconds")
+    ap.add_argument("--duration", type=float, default=1.0, help="simulated seconds (1 mm step)")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     system = ns.presets.seed(STEP_M)
