@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -67,7 +66,6 @@ class Trace:
     sample_period_s: float
     output_unit_v: float
     amplifier_limit_v: float
-    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def encoder_position_m(self) -> FloatArray:

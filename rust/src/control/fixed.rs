@@ -206,7 +206,8 @@ impl FxpFormat {
     }
 }
 
-fn narrow(v: i128) -> i64 {
+/// Narrow an `i128` known to fit a ≤ 64-bit format to `i64` (clamped otherwise).
+pub(crate) fn narrow(v: i128) -> i64 {
     // Callers only pass values inside a ≤ 64-bit format's range.
     i64::try_from(v).unwrap_or(if v < 0 { i64::MIN } else { i64::MAX })
 }

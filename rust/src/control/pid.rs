@@ -1,5 +1,5 @@
 //! The FPGA position PID, bit-exact (docs/controller.md).
-use super::fixed::{check_exact_width, product_shape, shape, sum_shape, Exact, FxpFormat};
+use super::fixed::{check_exact_width, narrow, product_shape, shape, sum_shape, Exact, FxpFormat};
 use crate::error::{check_positive, ConfigError};
 use std::cmp::Ordering;
 
@@ -323,10 +323,6 @@ impl Pid {
             flags: fl,
         }
     }
-}
-
-fn narrow(v: i128) -> i64 {
-    i64::try_from(v).unwrap_or(if v < 0 { i64::MIN } else { i64::MAX })
 }
 
 /// Raw value of `x` at the fraction bits of `fmt`, rounded up (`up`) or down when bits are
