@@ -12,11 +12,11 @@ __all__ = [
     "fxp_requantize",
     "pid_run",
     "seed_values",
-    "simulate_closed_loop",
+    "simulate_system",
     "simulate_open_loop",
     "validate_controller",
     "validate_integrator",
-    "validate_io",
+    "validate_system",
     "validate_plant",
 ]
 
@@ -31,7 +31,13 @@ class SimulationError(RuntimeError):
     t_s: float
     state: list[float]
 
-def simulate_closed_loop(system: Any, reference_m: npt.NDArray[np.float64]) -> dict[str, Any]: ...
+def simulate_system(
+    system: Any,
+    reference_m: npt.NDArray[np.float64],
+    force_disturbance_n: npt.NDArray[np.float64] | None = None,
+    command_disturbance_v: npt.NDArray[np.float64] | None = None,
+    seed: int = 0,
+) -> dict[str, Any]: ...
 def simulate_open_loop(
     plant: Any,
     integrator: Any,
@@ -50,4 +56,4 @@ def seed_values() -> dict[str, Any]: ...
 def validate_plant(plant: Any) -> None: ...
 def validate_controller(controller: Any) -> None: ...
 def validate_integrator(integrator: Any) -> None: ...
-def validate_io(encoder: Any, output_stage: Any) -> None: ...
+def validate_system(system: Any) -> None: ...

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from . import _core
+from .effects import Effects, StaticFrictionMap
 
 Rounding = Literal["truncate", "half_up", "half_even"]
 OverflowMode = Literal["saturate", "wrap"]
@@ -175,10 +176,36 @@ class FpgaPid:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class ForceDrivePlant:
+    """A force-controlled drive moving a lumped mass (EMPS): ``force = gain · command``,
+    friction on the table as a static map with true stiction, a constant offset force.
+    ``drive_mass_kg`` is the part of the mass on the drive side of a compliant link (it is
+    lumped with ``mass_kg`` when the chain is rigid)."""
+
+    drive_gain_n_per_v: float
+    mass_kg: float
+    friction: StaticFrictionMap
+    external_force_n: float = 0.0
+    drive_mass_kg: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CascadeController:
+    """The floating-point cascade of a dSPACE drive (EMPS):
+    ``u(k) = kp·kv·(r(k) − y(k)) − kv·(y(k) − y(k−2))/(2T)``, saturated at ±``saturation_v``."""
+
+    kp_per_s: float
+    kv_v_s_per_m: float
+    sample_period_s: float = 1e-3
+    saturation_v: float = 10.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class Encoder:
-    """Linear incremental encoder: the size of one count."""
+    """Linear incremental encoder: the size of one count and where it measures."""
 
     count_m: float = 100e-9
+    side: Literal["table", "motor"] = "table"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -209,11 +236,17 @@ class IntegratorOptions:
 class System:
     """Plant + controller + sensor + output stage + integrator: everything a run needs."""
 
-    plant: Plant
-    controller: FpgaPid
+    plant: Plant | ForceDrivePlant
+    controller: FpgaPid | CascadeController
     encoder: Encoder = field(default_factory=Encoder)
     output_stage: OutputStage = field(default_factory=OutputStage)
     integrator: IntegratorOptions = field(default_factory=IntegratorOptions)
+    effects: Effects = field(default_factory=Effects)
 
     def __post_init__(self) -> None:
-        _core.validate_io(self.encoder, self.output_stage)
+        _core.validate_system(self)
+
+    @property
+    def sample_period_s(self) -> float:
+        """Control period, s."""
+        return self.controller.sample_period_s

@@ -107,6 +107,9 @@ SEED_PROVENANCE: dict[str, Provenance] = {
     "encoder.count_m": _P(
         unit="m", source="seed paper: Heidenhain encoder, 100 nm resolution", confidence="B"
     ),
+    "encoder.side": _P(
+        unit="-", source="seed paper: the linear encoder reads the table", confidence="B"
+    ),
     "output_stage.amplifier_gain": _P(
         unit="V/V", source="assumed unity-gain linear amplifier", confidence="U"
     ),

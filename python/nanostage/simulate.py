@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import _core
-from .config import IntegratorOptions, Plant, System
+from .config import FpgaPid, IntegratorOptions, Plant, System
 
 __all__ = [
     "OpenLoopTrace",
@@ -30,7 +30,7 @@ __all__ = [
 ]
 
 #: Bytes one recorded sample takes (all channels).
-BYTES_PER_SAMPLE = 8 * 18
+BYTES_PER_SAMPLE = 8 * 21
 #: Most samples the core accepts in one trace.
 MAX_SAMPLES = 1 << 24
 
@@ -59,8 +59,10 @@ class Trace:
     d_term: FloatArray
     flags: npt.NDArray[np.uint32]
     motor_friction_force_n: FloatArray
-    dahl_force_n: FloatArray
+    table_friction_force_n: FloatArray
     stuck: BoolArray
+    motor_position_m: FloatArray
+    interferometer_m: FloatArray | None
     stats: dict[str, int]
     count_m: float
     sample_period_s: float
@@ -146,15 +148,41 @@ def step_reference(
     return out
 
 
-def simulate(system: System, reference_m: npt.ArrayLike) -> Trace:
+def _series(value: npt.ArrayLike | None, name: str, n: int) -> FloatArray | None:
+    if value is None:
+        return None
+    arr = np.ascontiguousarray(value, dtype=np.float64)
+    if arr.shape != (n,):
+        raise _core.ConfigError(
+            f"{name} = array of shape {arr.shape} is invalid: expected shape ({n},) like "
+            "reference_m"
+        )
+    return arr
+
+
+def simulate(
+    system: System,
+    reference_m: npt.ArrayLike,
+    *,
+    force_disturbance_n: npt.ArrayLike | None = None,
+    command_disturbance_v: npt.ArrayLike | None = None,
+    seed: int = 0,
+) -> Trace:
     """Run the closed loop over a reference trajectory.
 
     Parameters
     ----------
     system : System
-        Plant, FPGA loop, encoder, output stage and integrator options.
+        Plant, controller, encoder, output stage, integrator options and effects.
     reference_m : array_like, shape (n_samples,)
         Reference position at each control sample, m.
+    force_disturbance_n : array_like, shape (n_samples,), optional
+        Known force on the table held over each sample interval, N (positive along +x).
+    command_disturbance_v : array_like, shape (n_samples,), optional
+        Known voltage added to the controller's saturated output of each sample, V.
+    seed : int
+        Seed of every random draw (stochastic friction, noise, jitter); the same seed gives a
+        bit-identical run.
 
     Returns
     -------
@@ -174,13 +202,28 @@ def simulate(system: System, reference_m: npt.ArrayLike) -> Trace:
             f"reference_m = array of shape {ref.shape} is invalid: expected a 1-D array"
         )
     _check_samples(ref.size, "reference_m (length)", ref.size)
-    out = _core.simulate_closed_loop(system, ref)
+    if not 0 <= seed < 2**64:
+        raise _core.ConfigError(f"seed = {seed} is invalid: expected an integer in [0, 2**64)")
+    out = _core.simulate_system(
+        system,
+        ref,
+        _series(force_disturbance_n, "force_disturbance_n", ref.size),
+        _series(command_disturbance_v, "command_disturbance_v", ref.size),
+        int(seed),
+    )
+    if out["interferometer_m"].size == 0:
+        out["interferometer_m"] = None
+    ctl = system.controller
+    if isinstance(ctl, FpgaPid):
+        unit_v, limit_v = ctl.output_unit_v, system.output_stage.amplifier_limit_v
+    else:
+        unit_v, limit_v = 1.0, ctl.saturation_v
     return Trace(
         **out,
         count_m=system.encoder.count_m,
-        sample_period_s=system.controller.sample_period_s,
-        output_unit_v=system.controller.output_unit_v,
-        amplifier_limit_v=system.output_stage.amplifier_limit_v,
+        sample_period_s=ctl.sample_period_s,
+        output_unit_v=unit_v,
+        amplifier_limit_v=limit_v,
     )
 
 

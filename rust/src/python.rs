@@ -2,13 +2,21 @@
 //! computing, hand the results back as numpy arrays. No physics here.
 #![allow(missing_docs)]
 
+use crate::control::CascadeConfig;
 use crate::control::{
     AntiWindup, Encoder, FxpFormat, OutputStage, Overflow, Pid, PidConfig, Rounding,
+};
+use crate::drive::{
+    Actuator, Amplifier, DriveParams, DwellStatic, Gms, Link, LuGre, Modulation, Side, StaticMap,
+    TableFriction, MAX_GMS_ELEMENTS, MAX_MODULATION_TERMS,
 };
 use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Stats};
 use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
-use crate::sim::{run_closed_loop, run_open_loop, ClosedLoopConfig};
+use crate::sim::{
+    run_extended, run_open_loop, ControllerKind, ExtendedConfig, Interferometer, KnownInputs,
+    Sensors, SpreadDistribution, StochasticFriction, Trace,
+};
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -55,10 +63,6 @@ fn sim_err(e: SimError) -> PyErr {
         let _ = v.setattr("state", state);
         err
     })
-}
-
-fn with_prefix(prefix: &str) -> impl Fn(CoreConfigError) -> PyErr + '_ {
-    move |e| config_err(e.within(prefix))
 }
 
 #[derive(FromPyObject)]
@@ -162,8 +166,8 @@ struct PyPlant {
     dahl: PyDahl,
 }
 
-impl From<PyPlant> for AxisParams {
-    fn from(p: PyPlant) -> Self {
+impl From<&PyPlant> for AxisParams {
+    fn from(p: &PyPlant) -> Self {
         AxisParams {
             motor: Motor {
                 resistance_ohm: p.motor.resistance_ohm,
@@ -266,6 +270,7 @@ impl PyPid {
 #[derive(FromPyObject)]
 struct PyEncoder {
     count_m: f64,
+    side: String,
 }
 
 #[derive(FromPyObject)]
@@ -285,8 +290,8 @@ struct PyIntegrator {
     event_tol_s: f64,
 }
 
-impl From<PyIntegrator> for IntegratorOptions {
-    fn from(o: PyIntegrator) -> Self {
+impl From<&PyIntegrator> for IntegratorOptions {
+    fn from(o: &PyIntegrator) -> Self {
         IntegratorOptions {
             rtol: o.rtol,
             atol_position_m: o.atol_position_m,
@@ -300,12 +305,398 @@ impl From<PyIntegrator> for IntegratorOptions {
 }
 
 #[derive(FromPyObject)]
+struct PyDwell {
+    rise_n: f64,
+    time_constant_s: f64,
+}
+
+impl From<&PyDwell> for DwellStatic {
+    fn from(d: &PyDwell) -> Self {
+        DwellStatic {
+            rise_n: d.rise_n,
+            time_constant_s: d.time_constant_s,
+        }
+    }
+}
+
+#[derive(FromPyObject)]
+struct PyStaticMap {
+    static_force_n: f64,
+    coulomb_force_n: f64,
+    viscous_n_s_per_m: f64,
+    stribeck_velocity_m_per_s: f64,
+    stribeck_exponent: f64,
+    asymmetry: f64,
+    dwell: Option<PyDwell>,
+    memory_lag_s: Option<f64>,
+}
+
+impl From<&PyStaticMap> for StaticMap {
+    fn from(m: &PyStaticMap) -> Self {
+        StaticMap {
+            static_force_n: m.static_force_n,
+            coulomb_force_n: m.coulomb_force_n,
+            viscous_n_s_per_m: m.viscous_n_s_per_m,
+            stribeck_velocity_m_per_s: m.stribeck_velocity_m_per_s,
+            stribeck_exponent: m.stribeck_exponent,
+            asymmetry: m.asymmetry,
+            dwell: m.dwell.as_ref().map(DwellStatic::from),
+            memory_lag_s: m.memory_lag_s,
+        }
+    }
+}
+
+#[derive(FromPyObject)]
+struct PyLuGre {
+    stiffness_n_per_m: f64,
+    damping_n_s_per_m: f64,
+    viscous_n_s_per_m: f64,
+    coulomb_force_n: f64,
+    static_force_n: f64,
+    stribeck_velocity_m_per_s: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyGms {
+    stiffness_n_per_m: Vec<f64>,
+    weights: Vec<f64>,
+    coulomb_force_n: f64,
+    static_force_n: f64,
+    stribeck_velocity_m_per_s: f64,
+    viscous_n_s_per_m: f64,
+}
+
+#[derive(FromPyObject)]
+enum PyTableFriction {
+    Gms(PyGms),
+    LuGre(PyLuGre),
+    Static(PyStaticMap),
+}
+
+impl PyTableFriction {
+    fn to_core(&self) -> Result<TableFriction, CoreConfigError> {
+        Ok(match self {
+            Self::Static(m) => TableFriction::Static(m.into()),
+            Self::LuGre(l) => TableFriction::LuGre(LuGre {
+                stiffness_n_per_m: l.stiffness_n_per_m,
+                damping_n_s_per_m: l.damping_n_s_per_m,
+                viscous_n_s_per_m: l.viscous_n_s_per_m,
+                coulomb_force_n: l.coulomb_force_n,
+                static_force_n: l.static_force_n,
+                stribeck_velocity_m_per_s: l.stribeck_velocity_m_per_s,
+            }),
+            Self::Gms(g) => {
+                let n = g.stiffness_n_per_m.len();
+                if n == 0 || n > MAX_GMS_ELEMENTS || g.weights.len() != n {
+                    return Err(CoreConfigError::new(
+                        "table_friction.weights (length)",
+                        g.weights.len(),
+                        format!(
+                            "one weight per element, 1 to {MAX_GMS_ELEMENTS} elements \
+                             (stiffness_n_per_m has {n})"
+                        ),
+                    ));
+                }
+                let mut k = [1.0; MAX_GMS_ELEMENTS];
+                let mut w = [0.0; MAX_GMS_ELEMENTS];
+                k[..n].copy_from_slice(&g.stiffness_n_per_m);
+                w[..n].copy_from_slice(&g.weights);
+                TableFriction::Gms(Gms {
+                    n_elements: n,
+                    stiffness_n_per_m: k,
+                    weights: w,
+                    coulomb_force_n: g.coulomb_force_n,
+                    static_force_n: g.static_force_n,
+                    stribeck_velocity_m_per_s: g.stribeck_velocity_m_per_s,
+                    viscous_n_s_per_m: g.viscous_n_s_per_m,
+                })
+            }
+        })
+    }
+}
+
+#[derive(FromPyObject)]
+struct PyModifiers {
+    asymmetry: f64,
+    dwell: Option<PyDwell>,
+    memory_lag_s: Option<f64>,
+}
+
+#[derive(FromPyObject)]
+struct PyPositionFriction {
+    side: String,
+    terms: Vec<(f64, f64, f64)>,
+}
+
+#[derive(FromPyObject)]
+struct PyStochastic {
+    level_spread: f64,
+    distribution: String,
+    within_spread: f64,
+    correlation_time_s: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyBacklash {
+    width_m: f64,
+    contact_stiffness_n_per_m: f64,
+    damping_n_s_per_m: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyCompliance {
+    stiffness_n_per_m: f64,
+    damping_n_s_per_m: f64,
+    axial_stiffness_n_per_m: Option<f64>,
+    axial_damping_n_s_per_m: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyAmplifier {
+    bandwidth_hz: f64,
+    slew_v_per_s: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyEncoderErrors {
+    cyclic_amplitude_m: f64,
+    cyclic_period_m: f64,
+    cyclic_phase_rad: f64,
+    noise_std_m: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyInterferometer {
+    resolution_m: f64,
+    noise_std_m: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyEffects {
+    table_friction: Option<PyTableFriction>,
+    motor_friction: PyModifiers,
+    position_friction: Vec<PyPositionFriction>,
+    stochastic: Option<PyStochastic>,
+    backlash: Option<PyBacklash>,
+    compliance: Option<PyCompliance>,
+    amplifier: Option<PyAmplifier>,
+    encoder_errors: Option<PyEncoderErrors>,
+    interferometer: Option<PyInterferometer>,
+    sensor_delay_samples: usize,
+    computation_delay_samples: usize,
+    jitter_s: f64,
+}
+
+#[derive(FromPyObject)]
+struct PyForcePlant {
+    drive_gain_n_per_v: f64,
+    mass_kg: f64,
+    friction: PyStaticMap,
+    external_force_n: f64,
+    drive_mass_kg: f64,
+}
+
+#[derive(FromPyObject)]
+enum PyAnyPlant {
+    Seed(PyPlant),
+    Force(PyForcePlant),
+}
+
+#[derive(FromPyObject)]
+struct PyCascade {
+    kp_per_s: f64,
+    kv_v_s_per_m: f64,
+    sample_period_s: f64,
+    saturation_v: f64,
+}
+
+#[derive(FromPyObject)]
+enum PyAnyController {
+    Fpga(PyPid),
+    Cascade(PyCascade),
+}
+
+#[derive(FromPyObject)]
 struct PySystem {
-    plant: PyPlant,
-    controller: PyPid,
+    plant: PyAnyPlant,
+    controller: PyAnyController,
     encoder: PyEncoder,
     output_stage: PyOutputStage,
     integrator: PyIntegrator,
+    effects: PyEffects,
+}
+
+fn side(field: &str, s: &str) -> Result<Side, CoreConfigError> {
+    match s {
+        "motor" => Ok(Side::Motor),
+        "table" => Ok(Side::Table),
+        other => Err(CoreConfigError::new(
+            field,
+            format!("{other:?}"),
+            "one of 'motor', 'table'",
+        )),
+    }
+}
+
+fn modulation(terms: &[(f64, f64, f64)], into: &mut Modulation) -> Result<(), CoreConfigError> {
+    let start = into.n_terms;
+    if start + terms.len() > MAX_MODULATION_TERMS {
+        return Err(CoreConfigError::new(
+            "effects.position_friction (terms per side)",
+            start + terms.len(),
+            format!("at most {MAX_MODULATION_TERMS}"),
+        ));
+    }
+    for (k, &(a, kappa, phi)) in terms.iter().enumerate() {
+        into.amplitude[start + k] = a;
+        into.wavenumber_rad_per_m[start + k] = kappa;
+        into.phase_rad[start + k] = phi;
+    }
+    into.n_terms += terms.len();
+    Ok(())
+}
+
+/// Build the core configuration of a `System` (all validation happens in the core).
+fn build_system(sys: &PySystem, seed: u64) -> Result<ExtendedConfig, CoreConfigError> {
+    let fx = &sys.effects;
+    let (mut drive, axis) = match &sys.plant {
+        PyAnyPlant::Seed(p) => {
+            let axis = AxisParams::from(p);
+            (DriveParams::from_axis(&axis), Some(axis))
+        }
+        PyAnyPlant::Force(f) => {
+            let mut d = DriveParams::from_axis(&crate::presets::seed_axis());
+            d.actuator = Actuator::ForceDrive {
+                gain_n_per_v: f.drive_gain_n_per_v,
+                drive_mass_kg: f.drive_mass_kg,
+            };
+            d.motor_friction = None;
+            d.table_friction = TableFriction::Static((&f.friction).into());
+            d.table_mass_kg = f.mass_kg;
+            d.external_force_n = f.external_force_n;
+            (d, None)
+        }
+    };
+    if let Some(tf) = &fx.table_friction {
+        drive.table_friction = tf.to_core()?;
+    }
+    if let Some(m) = drive.motor_friction.as_mut() {
+        m.asymmetry = fx.motor_friction.asymmetry;
+        m.dwell = fx.motor_friction.dwell.as_ref().map(DwellStatic::from);
+        m.memory_lag_s = fx.motor_friction.memory_lag_s;
+    } else if fx.motor_friction.asymmetry != 0.0
+        || fx.motor_friction.dwell.is_some()
+        || fx.motor_friction.memory_lag_s.is_some()
+    {
+        return Err(CoreConfigError::new(
+            "effects.motor_friction",
+            "modifiers",
+            "none: this plant has no motor-shaft friction (use the table friction map)",
+        ));
+    }
+    for (k, pf) in fx.position_friction.iter().enumerate() {
+        let target = match side(&format!("effects.position_friction[{k}].side"), &pf.side)? {
+            Side::Motor => &mut drive.motor_modulation,
+            Side::Table => &mut drive.table_modulation,
+        };
+        modulation(&pf.terms, target)?;
+    }
+    match (&fx.backlash, &fx.compliance) {
+        (None, None) => {}
+        (b, c) => {
+            let (k, damping) = match (b, c) {
+                (_, Some(c)) => (c.stiffness_n_per_m, c.damping_n_s_per_m),
+                (Some(b), None) => (b.contact_stiffness_n_per_m, b.damping_n_s_per_m),
+                (None, None) => (1.0, 0.0),
+            };
+            drive.n_links = 1;
+            drive.links[0] = Link {
+                stiffness_n_per_m: k,
+                damping_n_s_per_m: damping,
+                backlash_m: b.as_ref().map_or(0.0, |b| b.width_m),
+            };
+            if let Some(ka) = c.as_ref().and_then(|c| c.axial_stiffness_n_per_m) {
+                drive.n_links = 2;
+                drive.links[1] = Link {
+                    stiffness_n_per_m: ka,
+                    damping_n_s_per_m: c.as_ref().map_or(0.0, |c| c.axial_damping_n_s_per_m),
+                    backlash_m: 0.0,
+                };
+            }
+        }
+    }
+    drive.amplifier = fx.amplifier.as_ref().map(|a| Amplifier {
+        bandwidth_hz: a.bandwidth_hz,
+        slew_v_per_s: a.slew_v_per_s,
+    });
+    let controller = match &sys.controller {
+        PyAnyController::Fpga(p) => ControllerKind::Fpga {
+            pid: p.to_core().map_err(|e| e.within("controller"))?,
+            output: OutputStage {
+                amplifier_gain: sys.output_stage.amplifier_gain,
+                amplifier_limit_v: sys.output_stage.amplifier_limit_v,
+            },
+        },
+        PyAnyController::Cascade(c) => ControllerKind::Cascade(CascadeConfig {
+            kp_per_s: c.kp_per_s,
+            kv_v_s_per_m: c.kv_v_s_per_m,
+            sample_period_s: c.sample_period_s,
+            saturation_v: c.saturation_v,
+        }),
+    };
+    let e = fx.encoder_errors.as_ref();
+    let sensors = Sensors {
+        encoder: Encoder {
+            count_m: sys.encoder.count_m,
+        },
+        side: side("encoder.side", &sys.encoder.side)?,
+        cyclic_amplitude_m: e.map_or(0.0, |e| e.cyclic_amplitude_m),
+        cyclic_period_m: e.map_or(2e-5, |e| e.cyclic_period_m),
+        cyclic_phase_rad: e.map_or(0.0, |e| e.cyclic_phase_rad),
+        noise_std_m: e.map_or(0.0, |e| e.noise_std_m),
+        delay_samples: fx.sensor_delay_samples,
+        interferometer: fx.interferometer.as_ref().map(|i| Interferometer {
+            resolution_m: i.resolution_m,
+            noise_std_m: i.noise_std_m,
+        }),
+    };
+    let stochastic = match &fx.stochastic {
+        None => None,
+        Some(st) => Some(StochasticFriction {
+            level_spread: st.level_spread,
+            distribution: match st.distribution.as_str() {
+                "normal" => SpreadDistribution::Normal,
+                "lognormal" => SpreadDistribution::LogNormal,
+                "uniform" => SpreadDistribution::Uniform,
+                other => {
+                    return Err(CoreConfigError::new(
+                        "effects.stochastic.distribution",
+                        format!("{other:?}"),
+                        "one of 'normal', 'lognormal', 'uniform'",
+                    ))
+                }
+            },
+            within_spread: st.within_spread,
+            correlation_time_s: st.correlation_time_s,
+        }),
+    };
+    let cfg = ExtendedConfig {
+        drive,
+        axis,
+        controller,
+        sensors,
+        computation_delay_samples: fx.computation_delay_samples,
+        jitter_s: fx.jitter_s,
+        stochastic,
+        seed,
+        integrator: (&sys.integrator).into(),
+    };
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+fn optional_series(a: &Option<PyReadonlyArray1<'_, f64>>) -> Vec<f64> {
+    a.as_ref().map_or_else(Vec::new, |a| a.as_array().to_vec())
 }
 
 fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
@@ -319,40 +710,45 @@ fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
-/// Run the closed loop; returns a dict of per-sample numpy arrays plus `stats`.
+/// Run the closed loop of a `System`; returns a dict of per-sample numpy arrays plus `stats`.
 #[pyfunction]
-fn simulate_closed_loop<'py>(
+#[pyo3(signature = (system, reference_m, force_disturbance_n=None, command_disturbance_v=None, seed=0))]
+fn simulate_system<'py>(
     py: Python<'py>,
     system: PySystem,
     reference_m: PyReadonlyArray1<'py, f64>,
+    force_disturbance_n: Option<PyReadonlyArray1<'py, f64>>,
+    command_disturbance_v: Option<PyReadonlyArray1<'py, f64>>,
+    seed: u64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let pid = system
-        .controller
-        .to_core()
-        .map_err(with_prefix("controller"))?;
-    let cfg = ClosedLoopConfig {
-        axis: system.plant.into(),
-        pid,
-        encoder: Encoder {
-            count_m: system.encoder.count_m,
-        },
-        output: OutputStage {
-            amplifier_gain: system.output_stage.amplifier_gain,
-            amplifier_limit_v: system.output_stage.amplifier_limit_v,
-        },
-        integrator: system.integrator.into(),
-    };
-    cfg.validate().map_err(config_err)?;
+    let cfg = build_system(&system, seed).map_err(config_err)?;
     let reference: Vec<f64> = reference_m.as_array().to_vec();
+    let force = optional_series(&force_disturbance_n);
+    let command = optional_series(&command_disturbance_v);
     let tr = py
-        .detach(|| run_closed_loop(&cfg, &reference, None))
+        .detach(|| {
+            run_extended(
+                &cfg,
+                &reference,
+                KnownInputs {
+                    force_n: &force,
+                    command_v: &command,
+                },
+                None,
+            )
+        })
         .map_err(sim_err)?;
+    trace_dict(py, tr)
+}
+
+fn trace_dict(py: Python<'_>, tr: Trace) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("stats", stats_dict(py, &tr.stats)?)?;
     d.set_item("time_s", tr.time_s.into_pyarray(py))?;
     d.set_item("reference_m", tr.reference_m.into_pyarray(py))?;
     d.set_item("reference_counts", tr.reference_counts.into_pyarray(py))?;
     d.set_item("position_m", tr.position_m.into_pyarray(py))?;
+    d.set_item("motor_position_m", tr.motor_position_m.into_pyarray(py))?;
     d.set_item("velocity_m_per_s", tr.velocity_m_per_s.into_pyarray(py))?;
     d.set_item("encoder_counts", tr.encoder_counts.into_pyarray(py))?;
     d.set_item("current_a", tr.current_a.into_pyarray(py))?;
@@ -368,9 +764,19 @@ fn simulate_closed_loop<'py>(
         "motor_friction_force_n",
         tr.motor_friction_force_n.into_pyarray(py),
     )?;
-    d.set_item("dahl_force_n", tr.dahl_force_n.into_pyarray(py))?;
+    d.set_item(
+        "table_friction_force_n",
+        tr.table_friction_force_n.into_pyarray(py),
+    )?;
     d.set_item("stuck", tr.stuck.into_pyarray(py))?;
+    d.set_item("interferometer_m", tr.interferometer_m.into_pyarray(py))?;
     Ok(d)
+}
+
+/// Validate a whole `System` (raises ConfigError naming the field).
+#[pyfunction]
+fn validate_system(system: PySystem) -> PyResult<()> {
+    build_system(&system, 0).map(|_| ()).map_err(config_err)
 }
 
 /// Drive the plant alone with a held voltage per sample.
@@ -382,8 +788,8 @@ fn simulate_open_loop<'py>(
     voltage_v: PyReadonlyArray1<'py, f64>,
     sample_period_s: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let axis: AxisParams = plant.into();
-    let opts: IntegratorOptions = integrator.into();
+    let axis = AxisParams::from(&plant);
+    let opts = IntegratorOptions::from(&integrator);
     let u: Vec<f64> = voltage_v.as_array().to_vec();
     let tr = py
         .detach(|| run_open_loop(&axis, &opts, &u, sample_period_s))
@@ -619,7 +1025,7 @@ fn seed_values(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 /// Validate a plant (raises ConfigError naming the field).
 #[pyfunction]
 fn validate_plant(plant: PyPlant) -> PyResult<()> {
-    AxisParams::from(plant).validate().map_err(config_err)
+    AxisParams::from(&plant).validate().map_err(config_err)
 }
 
 /// Validate a controller, including the quantisation of gains and range into their formats.
@@ -632,25 +1038,9 @@ fn validate_controller(controller: PyPid) -> PyResult<()> {
 /// Validate integrator options.
 #[pyfunction]
 fn validate_integrator(integrator: PyIntegrator) -> PyResult<()> {
-    IntegratorOptions::from(integrator)
+    IntegratorOptions::from(&integrator)
         .validate()
         .map_err(config_err)
-}
-
-/// Validate an encoder and an output stage.
-#[pyfunction]
-fn validate_io(encoder: PyEncoder, output_stage: PyOutputStage) -> PyResult<()> {
-    Encoder {
-        count_m: encoder.count_m,
-    }
-    .validate()
-    .map_err(with_prefix("encoder"))?;
-    OutputStage {
-        amplifier_gain: output_stage.amplifier_gain,
-        amplifier_limit_v: output_stage.amplifier_limit_v,
-    }
-    .validate()
-    .map_err(with_prefix("output_stage"))
 }
 
 #[pymodule]
@@ -659,7 +1049,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("ConfigError", py.get_type::<ConfigError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
-    m.add_function(wrap_pyfunction!(simulate_closed_loop, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate_system, m)?)?;
+    m.add_function(wrap_pyfunction!(validate_system, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_open_loop, m)?)?;
     m.add_function(wrap_pyfunction!(pid_run, m)?)?;
     m.add_function(wrap_pyfunction!(fxp_requantize, m)?)?;
@@ -667,6 +1058,5 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(validate_plant, m)?)?;
     m.add_function(wrap_pyfunction!(validate_controller, m)?)?;
     m.add_function(wrap_pyfunction!(validate_integrator, m)?)?;
-    m.add_function(wrap_pyfunction!(validate_io, m)?)?;
     Ok(())
 }

@@ -1,5 +1,10 @@
 //! Orchestration: the control-tick loop and what it records. No physics, no pyo3.
 
+mod extended;
 mod trial;
 
+pub use extended::{
+    run_extended, stream_seed, ControllerKind, ExtendedConfig, Interferometer, KnownInputs,
+    Sensors, SpreadDistribution, StochasticFriction,
+};
 pub use trial::{run_closed_loop, run_open_loop, ClosedLoopConfig, OpenLoopTrace, Trace};

@@ -1,9 +1,10 @@
 //! One closed-loop trial: sample → controller → hold → integrate to the next event in time.
-use crate::control::{flags, Encoder, OutputStage, Pid, PidConfig};
+use super::extended::{run_extended, ExtendedConfig, KnownInputs};
+use crate::control::{Encoder, OutputStage, PidConfig};
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Rodas4, Stats};
 use crate::model::{Axis, AxisParams, Mode, Plant};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 
 /// Everything a closed-loop run needs besides the reference.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,16 +61,20 @@ pub struct Trace {
     pub flags: Vec<u32>,
     /// Motor-shaft friction reflected to the table, N.
     pub motor_friction_force_n: Vec<f64>,
-    /// Dahl friction force, N.
-    pub dahl_force_n: Vec<f64>,
-    /// Whether the drive train was stuck at t_n.
+    /// Table-side friction force (the Dahl force in the seed model), N.
+    pub table_friction_force_n: Vec<f64>,
+    /// Whether the drive train (motor side or table) was stuck at t_n.
     pub stuck: Vec<bool>,
+    /// Motor-side position at the table (equals `position_m` for a rigid chain), m.
+    pub motor_position_m: Vec<f64>,
+    /// Interferometer reading, m (empty without an interferometer).
+    pub interferometer_m: Vec<f64>,
     /// Integrator work counters.
     pub stats: Stats,
 }
 
 impl Trace {
-    fn with_capacity(n: usize) -> Self {
+    pub(crate) fn with_capacity(n: usize) -> Self {
         Self {
             time_s: Vec::with_capacity(n),
             reference_m: Vec::with_capacity(n),
@@ -87,8 +92,10 @@ impl Trace {
             d_term: Vec::with_capacity(n),
             flags: Vec::with_capacity(n),
             motor_friction_force_n: Vec::with_capacity(n),
-            dahl_force_n: Vec::with_capacity(n),
+            table_friction_force_n: Vec::with_capacity(n),
             stuck: Vec::with_capacity(n),
+            motor_position_m: Vec::with_capacity(n),
+            interferometer_m: Vec::new(),
             stats: Stats::default(),
         }
     }
@@ -109,7 +116,7 @@ impl ClosedLoopConfig {
     }
 }
 
-fn check_samples(n: usize) -> Result<(), ConfigError> {
+pub(crate) fn check_samples(n: usize) -> Result<(), ConfigError> {
     if n == 0 || n > MAX_SAMPLES {
         return Err(ConfigError::new(
             "reference_m (number of samples)",
@@ -121,84 +128,16 @@ fn check_samples(n: usize) -> Result<(), ConfigError> {
 }
 
 /// Run the closed loop over `reference_m` (one value per control sample). `stop` is polled
-/// every 1024 samples; when set the run ends with [`SimError::Interrupted`].
+/// every 256 samples; when set the run ends with [`SimError::Interrupted`]. This is
+/// [`run_extended`] with every effect off.
 pub fn run_closed_loop(
     cfg: &ClosedLoopConfig,
     reference_m: &[f64],
     stop: Option<&AtomicBool>,
 ) -> Result<Trace, SimError> {
     cfg.validate()?;
-    check_samples(reference_m.len())?;
-    if let Some((k, v)) = reference_m.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-        return Err(
-            ConfigError::new(format!("reference_m[{k}]"), v, "a finite position in m").into(),
-        );
-    }
-    let axis = Axis::new(cfg.axis).map_err(|e| e.within("plant"))?;
-    let integrator = Rodas4::new(cfg.integrator).map_err(|e| e.within("integrator"))?;
-    let mut pid = Pid::new(cfg.pid).map_err(|e| e.within("controller"))?;
-    let mut plant = Plant::new(axis, integrator);
-    let n = reference_m.len();
-    let mut tr = Trace::with_capacity(n);
-    let c = &cfg.pid;
-    let clock = c.clock_hz;
-    let tick_t = |ticks: u64| ticks as f64 / clock;
-    let mut u_held = 0.0_f64;
-    for (k, &r_m) in reference_m.iter().enumerate() {
-        if k % 1024 == 0 {
-            if let Some(flag) = stop {
-                if flag.load(Ordering::Relaxed) {
-                    return Err(SimError::Interrupted {
-                        t_s: tick_t(k as u64 * c.ticks_per_sample),
-                    });
-                }
-            }
-        }
-        let t_sample_ticks = k as u64 * c.ticks_per_sample;
-        let t_n = tick_t(t_sample_ticks);
-        let t_update = tick_t(t_sample_ticks + c.latency_ticks);
-        let t_next = tick_t(t_sample_ticks + c.ticks_per_sample);
-        let y_counts = cfg.encoder.read(plant.y[0]);
-        let r_counts = cfg.encoder.reference_counts(r_m);
-        let out = pid.step(r_counts, y_counts);
-        let (u_new, amp_sat) = cfg.output.motor_voltage(out.code, c.dac_lsb_v);
-        let fl = out.flags
-            | if amp_sat {
-                flags::AMPLIFIER_SATURATED
-            } else {
-                0
-            };
-        // Record the plant at t_n (with the voltage held before the update) and the update.
-        tr.time_s.push(t_n);
-        tr.reference_m.push(r_m);
-        tr.reference_counts.push(r_counts);
-        tr.position_m.push(plant.y[0]);
-        tr.velocity_m_per_s.push(plant.y[1]);
-        tr.encoder_counts.push(y_counts);
-        tr.current_a.push(plant.current(u_held));
-        tr.motor_voltage_v.push(u_new);
-        tr.command.push(c.output_format.to_f64(out.u));
-        tr.dac_code.push(out.code);
-        tr.error.push(c.error_format.to_f64(out.e));
-        tr.p_term.push(c.term_format.to_f64(out.p));
-        tr.i_term.push(c.integrator_format.to_f64(out.i));
-        tr.d_term.push(c.term_format.to_f64(out.d));
-        tr.flags.push(fl);
-        tr.motor_friction_force_n.push(
-            plant
-                .axis
-                .motor_friction_force(&plant.y, plant.mode, u_held),
-        );
-        tr.dahl_force_n.push(plant.y[2]);
-        tr.stuck.push(plant.mode == Mode::Stuck);
-        if c.latency_ticks > 0 {
-            plant.advance(u_held, t_n, t_update)?;
-        }
-        u_held = u_new;
-        plant.advance(u_held, t_update, t_next)?;
-    }
-    tr.stats = plant.integrator.stats;
-    Ok(tr)
+    let ext = ExtendedConfig::from_closed_loop(cfg);
+    run_extended(&ext, reference_m, KnownInputs::default(), stop)
 }
 
 /// What an open-loop run recorded, at t_k = k·T for k = 0..=n.

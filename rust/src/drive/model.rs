@@ -1,0 +1,843 @@
+//! The component plant as a hybrid ODE: a chain of 1–3 masses with links (spring, damper,
+//! dead band), a DC motor or force drive, optional amplifier dynamics, static friction maps
+//! with true stiction per mass, and a dynamic friction model (Dahl, LuGre, GMS) on the
+//! table. The state layout is built from the components; the Jacobian is a forward
+//! difference (the analytic one of the rigid seed plant lives in `model::axis`).
+use super::params::{Actuator, DriveParams, Gms, LuGre, Modulation, StaticMap, TableFriction};
+use crate::error::{ConfigError, SimError};
+use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd, Stats};
+use crate::model::DahlFriction;
+use nalgebra::{Const, DimMin, SMatrix, SVector};
+
+/// Most masses in the chain.
+pub const MAX_MASSES: usize = 3;
+/// β of the GMS elements: an element follows the motion exactly below β of its slip force.
+pub const GMS_ELASTIC_FRACTION: f64 = 0.9;
+
+/// Inputs held constant over one segment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Inputs {
+    /// Command voltage (DC motor: motor terminal voltage; force drive: drive command), V.
+    pub u_v: f64,
+    /// Known force disturbance on the table, N, positive along +x.
+    pub force_n: f64,
+    /// Multiplier of every friction level (stochastic within-trial fluctuation), > 0.
+    pub friction_scale: f64,
+}
+
+impl Inputs {
+    /// A voltage with no disturbance and nominal friction.
+    pub fn voltage(u_v: f64) -> Self {
+        Self {
+            u_v,
+            force_n: 0.0,
+            friction_scale: 1.0,
+        }
+    }
+}
+
+/// The discrete mode of one mass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MassMode {
+    /// No static friction map on this mass: it always moves freely.
+    Free,
+    /// Held by static friction: v = 0 exactly.
+    Stuck,
+    /// Slipping in direction ±1 (replaces sgn v in the friction laws).
+    Slip(f64),
+}
+
+/// Validated parameters and the derived layout.
+#[derive(Debug, Clone)]
+pub struct Drive {
+    /// Parameters.
+    pub params: DriveParams,
+    /// Number of masses.
+    pub n_mass: usize,
+    /// Masses, kg (table-equivalent).
+    pub mass_kg: [f64; MAX_MASSES],
+    /// Number of states.
+    pub n_state: usize,
+    i_current: Option<usize>,
+    i_amp: Option<usize>,
+    i_clock: [Option<usize>; MAX_MASSES],
+    i_lag_motor: Option<usize>,
+    i_lag_table: Option<usize>,
+    i_fric: usize,
+    n_fric: usize,
+    /// Transmission r, m per motor radian (1 for a force drive).
+    pub transmission_m_per_rad: f64,
+    /// Forward efficiency η (1 for a force drive).
+    pub efficiency: f64,
+    /// Typical magnitude of each state (finite-difference increments, tolerances).
+    pub scales: Vec<f64>,
+}
+
+fn modulation(m: &Modulation, x: f64) -> (f64, f64) {
+    let mut f = 1.0;
+    let mut df = 0.0;
+    for k in 0..m.n_terms {
+        let arg = m.wavenumber_rad_per_m[k] * x + m.phase_rad[k];
+        f += m.amplitude[k] * arg.cos();
+        df -= m.amplitude[k] * m.wavenumber_rad_per_m[k] * arg.sin();
+    }
+    (f, df)
+}
+
+fn smoothstep(s: f64) -> f64 {
+    let s = s.clamp(0.0, 1.0);
+    s * s * (3.0 - 2.0 * s)
+}
+
+impl StaticMap {
+    /// Direction factor of the asymmetry for direction `d`.
+    #[inline]
+    fn dir(&self, d: f64) -> f64 {
+        1.0 + self.asymmetry * d
+    }
+
+    /// Sliding force in direction `d` at velocity `v` with lagged velocity `w` and level
+    /// scale `s` (modulation × stochastic factor).
+    #[inline]
+    pub fn sliding_force(&self, v: f64, w: f64, d: f64, s: f64) -> f64 {
+        let q = (w.abs() / self.stribeck_velocity_m_per_s).max(1e-300);
+        let e = if self.static_force_n == self.coulomb_force_n {
+            0.0
+        } else {
+            (-q.powf(self.stribeck_exponent)).exp()
+        };
+        self.dir(d)
+            * (s * (self.coulomb_force_n + (self.static_force_n - self.coulomb_force_n) * e) * d
+                + self.viscous_n_s_per_m * v)
+    }
+
+    /// Largest force the map holds at rest, pushing in direction `d`, after a dwell `t_d`.
+    #[inline]
+    pub fn capacity(&self, d: f64, s: f64, dwell_s: f64) -> f64 {
+        let rise = match &self.dwell {
+            Some(dw) => dw.rise_n * dwell_s / (dwell_s + dw.time_constant_s),
+            None => 0.0,
+        };
+        self.dir(d) * s * (self.static_force_n + rise)
+    }
+}
+
+impl LuGre {
+    fn g(&self, v: f64, s: f64) -> f64 {
+        let q = v / self.stribeck_velocity_m_per_s;
+        s * (self.coulomb_force_n + (self.static_force_n - self.coulomb_force_n) * (-q * q).exp())
+    }
+}
+
+impl Gms {
+    fn slip_force(&self, v: f64, s: f64) -> f64 {
+        let q = v / self.stribeck_velocity_m_per_s;
+        s * (self.coulomb_force_n + (self.static_force_n - self.coulomb_force_n) * (-q * q).exp())
+    }
+}
+
+/// Element rate of a GMS element with deflection `z`, limit `z_max`, velocity `v`.
+#[inline]
+fn gms_rate(z: f64, z_max: f64, v: f64) -> f64 {
+    if v == 0.0 {
+        return 0.0;
+    }
+    let w = v.signum() * z / z_max;
+    let beta = GMS_ELASTIC_FRACTION;
+    let alpha = if w <= beta {
+        0.0
+    } else if w <= 1.0 {
+        smoothstep((w - beta) / (1.0 - beta))
+    } else {
+        w
+    };
+    v * (1.0 - alpha)
+}
+
+impl Drive {
+    /// Validate and build the layout.
+    pub fn new(params: DriveParams) -> Result<Self, ConfigError> {
+        params.validate()?;
+        let (r, eta, masses): (f64, f64, Vec<f64>) = match &params.actuator {
+            Actuator::DcMotor {
+                motor,
+                gearhead,
+                screw,
+            } => {
+                let r = screw.lead_m / (2.0 * std::f64::consts::PI * gearhead.ratio);
+                let k = 2.0 * std::f64::consts::PI / screw.lead_m;
+                let eta = gearhead.efficiency * screw.efficiency;
+                let m_motor = eta * motor.rotor_inertia_kg_m2 / (r * r);
+                let m_screw = screw.efficiency * screw.inertia_kg_m2 * k * k;
+                let m_table = params.table_mass_kg;
+                let masses = match params.n_links {
+                    0 => vec![m_motor + m_screw + m_table],
+                    1 => vec![m_motor, m_screw + m_table],
+                    _ => vec![m_motor, m_screw, m_table],
+                };
+                (r, eta, masses)
+            }
+            Actuator::ForceDrive { drive_mass_kg, .. } => {
+                let masses = match params.n_links {
+                    0 => vec![drive_mass_kg + params.table_mass_kg],
+                    _ => vec![*drive_mass_kg, params.table_mass_kg],
+                };
+                (1.0, 1.0, masses)
+            }
+        };
+        let n_mass = masses.len();
+        let mut mass_kg = [0.0; MAX_MASSES];
+        mass_kg[..n_mass].copy_from_slice(&masses);
+        let mut scales: Vec<f64> = Vec::new();
+        for _ in 0..n_mass {
+            scales.push(1e-3); // position, m
+            scales.push(1e-2); // velocity, m/s
+        }
+        let mut next = 2 * n_mass;
+        let mut take = |scale: f64, scales: &mut Vec<f64>| {
+            scales.push(scale);
+            next += 1;
+            next - 1
+        };
+        let i_current = match &params.actuator {
+            Actuator::DcMotor { motor, .. } if !motor.quasi_static_current => {
+                Some(take(0.1, &mut scales))
+            }
+            _ => None,
+        };
+        let i_amp = params.amplifier.map(|_| take(1.0, &mut scales));
+        let table = n_mass - 1;
+        let table_map = match &params.table_friction {
+            TableFriction::Static(m) => Some(*m),
+            _ => None,
+        };
+        let mut i_clock = [None; MAX_MASSES];
+        let motor_dwell = params.motor_friction.is_some_and(|m| m.dwell.is_some());
+        let table_dwell = table_map.is_some_and(|m| m.dwell.is_some());
+        if motor_dwell || (table == 0 && table_dwell) {
+            i_clock[0] = Some(take(1.0, &mut scales));
+        }
+        if table > 0 && table_dwell {
+            i_clock[table] = Some(take(1.0, &mut scales));
+        }
+        let i_lag_motor = params
+            .motor_friction
+            .and_then(|m| m.memory_lag_s)
+            .map(|_| take(1e-2, &mut scales));
+        let i_lag_table = table_map
+            .and_then(|m| m.memory_lag_s)
+            .map(|_| take(1e-2, &mut scales));
+        let i_fric = next;
+        let n_fric = match &params.table_friction {
+            TableFriction::Dahl(d) => {
+                scales.push(d.coulomb_force_n);
+                1
+            }
+            TableFriction::LuGre(l) => {
+                scales.push(l.coulomb_force_n / l.stiffness_n_per_m);
+                1
+            }
+            TableFriction::Gms(g) => {
+                for i in 0..g.n_elements {
+                    scales.push(g.weights[i] * g.coulomb_force_n / g.stiffness_n_per_m[i]);
+                }
+                g.n_elements
+            }
+            _ => 0,
+        };
+        let n_state = i_fric + n_fric;
+        Ok(Self {
+            params,
+            n_mass,
+            mass_kg,
+            n_state,
+            i_current,
+            i_amp,
+            i_clock,
+            i_lag_motor,
+            i_lag_table,
+            i_fric,
+            n_fric,
+            transmission_m_per_rad: r,
+            efficiency: eta,
+            scales,
+        })
+    }
+
+    /// Index of the table mass.
+    #[inline]
+    pub fn table(&self) -> usize {
+        self.n_mass - 1
+    }
+
+    /// Whether mass `j` carries a static map (and so can stick).
+    pub fn can_stick(&self, j: usize) -> bool {
+        (j == 0 && self.params.motor_friction.is_some())
+            || (j == self.table() && matches!(self.params.table_friction, TableFriction::Static(_)))
+    }
+
+    /// Initial modes: stuck where a static map holds the mass, free elsewhere.
+    pub fn initial_modes(&self) -> [MassMode; MAX_MASSES] {
+        let mut m = [MassMode::Free; MAX_MASSES];
+        for (j, mode) in m.iter_mut().enumerate().take(self.n_mass) {
+            if self.can_stick(j) {
+                *mode = MassMode::Stuck;
+            }
+        }
+        m
+    }
+
+    /// Voltage at the actuator (the amplifier state when modelled).
+    #[inline]
+    fn applied_v(&self, y: &[f64], inp: &Inputs) -> f64 {
+        self.i_amp.map_or(inp.u_v, |k| y[k])
+    }
+
+    /// Motor current (DC motor), A; 0 for a force drive.
+    pub fn current_a(&self, y: &[f64], inp: &Inputs) -> f64 {
+        match &self.params.actuator {
+            Actuator::DcMotor { motor, .. } => match self.i_current {
+                Some(k) => y[k],
+                None => {
+                    (self.applied_v(y, inp)
+                        - motor.back_emf_v_s_per_rad * y[1] / self.transmission_m_per_rad)
+                        / motor.resistance_ohm
+                }
+            },
+            Actuator::ForceDrive { .. } => 0.0,
+        }
+    }
+
+    /// Actuator force on mass 0, N.
+    #[inline]
+    fn drive_force(&self, y: &[f64], inp: &Inputs) -> f64 {
+        match &self.params.actuator {
+            Actuator::DcMotor { motor, .. } => {
+                self.efficiency * motor.torque_constant_nm_per_a * self.current_a(y, inp)
+                    / self.transmission_m_per_rad
+            }
+            Actuator::ForceDrive { gain_n_per_v, .. } => gain_n_per_v * self.applied_v(y, inp),
+        }
+    }
+
+    fn direction(mode: MassMode, v: f64) -> f64 {
+        match mode {
+            MassMode::Slip(d) => d,
+            MassMode::Stuck => 0.0,
+            MassMode::Free => {
+                if v > 0.0 {
+                    1.0
+                } else if v < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// Force of link `k` on mass `k` (the mass on its drive side), N: `−(k·dz(δ) + c·δ̇·c(δ))`
+    /// with δ = x_k − x_{k+1}, dz the dead-zone function and c(δ) a contact ramp over 1 nm.
+    fn link_force(&self, k: usize, y: &[f64]) -> f64 {
+        let l = &self.params.links[k];
+        let delta = y[2 * k] - y[2 * k + 2];
+        let ddelta = y[2 * k + 1] - y[2 * k + 3];
+        let half = 0.5 * l.backlash_m;
+        let pen = if delta > half {
+            delta - half
+        } else if delta < -half {
+            delta + half
+        } else {
+            0.0
+        };
+        let contact = if l.backlash_m == 0.0 {
+            1.0
+        } else {
+            (pen.abs() / 1e-9).min(1.0)
+        };
+        l.stiffness_n_per_m * pen + l.damping_n_s_per_m * ddelta * contact
+    }
+
+    /// Dynamic table friction force (not the static map), N, and its state derivatives
+    /// (written to `dfric` if given).
+    fn dynamic_friction(
+        &self,
+        y: &[f64],
+        v: f64,
+        d: f64,
+        s: f64,
+        dfric: Option<&mut [f64]>,
+    ) -> f64 {
+        let z = &y[self.i_fric..self.i_fric + self.n_fric];
+        match &self.params.table_friction {
+            TableFriction::Dahl(p) => {
+                let scaled = DahlFriction {
+                    coulomb_force_n: p.coulomb_force_n * s,
+                    ..*p
+                };
+                if let Some(dz) = dfric {
+                    // The direction d of the slip segment replaces sgn v (1 when free).
+                    let dd = if d == 0.0 { 1.0 } else { d };
+                    dz[0] = scaled.rate(v, z[0], dd).0;
+                }
+                z[0]
+            }
+            TableFriction::LuGre(p) => {
+                let g = p.g(v, s);
+                let zdot = v - p.stiffness_n_per_m * v.abs() * z[0] / g;
+                if let Some(dz) = dfric {
+                    dz[0] = zdot;
+                }
+                p.stiffness_n_per_m * z[0] + p.damping_n_s_per_m * zdot + p.viscous_n_s_per_m * v
+            }
+            TableFriction::Gms(p) => {
+                let sv = p.slip_force(v, s);
+                let mut f = p.viscous_n_s_per_m * v;
+                let mut rates = dfric;
+                for i in 0..p.n_elements {
+                    let z_max = p.weights[i] * sv / p.stiffness_n_per_m[i];
+                    if let Some(dz) = rates.as_deref_mut() {
+                        dz[i] = gms_rate(z[i], z_max, v);
+                    }
+                    f += p.stiffness_n_per_m[i] * z[i];
+                }
+                f
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// Friction level scale of a side at position `x`.
+    #[inline]
+    fn level(&self, m: &Modulation, x: f64, inp: &Inputs) -> f64 {
+        inp.friction_scale * modulation(m, x).0
+    }
+
+    /// Forces on each mass except its static maps, and the static maps' sliding force and
+    /// capacity per mass. Returns (non-static force, static sliding force, capacity(+), capacity(−)).
+    fn forces(
+        &self,
+        y: &[f64],
+        inp: &Inputs,
+        modes: &[MassMode; MAX_MASSES],
+        dfric: Option<&mut [f64]>,
+    ) -> [[f64; 4]; MAX_MASSES] {
+        let p = &self.params;
+        let mut out = [[0.0; 4]; MAX_MASSES];
+        out[0][0] += self.drive_force(y, inp);
+        for k in 0..p.n_links {
+            let f = self.link_force(k, y);
+            out[k][0] -= f;
+            out[k + 1][0] += f;
+        }
+        let t = self.table();
+        let vt = y[2 * t + 1];
+        let dt = Self::direction(modes[t], vt);
+        let st = self.level(&p.table_modulation, y[2 * t], inp);
+        out[t][0] += inp.force_n - p.external_force_n - self.dynamic_friction(y, vt, dt, st, dfric);
+        if let Some(m) = &p.motor_friction {
+            let v0 = y[1];
+            let d0 = Self::direction(modes[0], v0);
+            let s0 = self.level(&p.motor_modulation, y[0], inp);
+            let w = self.i_lag_motor.map_or(v0, |k| y[k]);
+            let dwell = self.i_clock[0].map_or(0.0, |k| y[k]);
+            if d0 != 0.0 {
+                out[0][1] += m.sliding_force(v0, w, d0, s0);
+            }
+            out[0][2] += m.capacity(1.0, s0, dwell);
+            out[0][3] += m.capacity(-1.0, s0, dwell);
+        }
+        if let TableFriction::Static(m) = &p.table_friction {
+            let w = self.i_lag_table.map_or(vt, |k| y[k]);
+            let dwell = self.i_clock[t].map_or(0.0, |k| y[k]);
+            if dt != 0.0 {
+                out[t][1] += m.sliding_force(vt, w, dt, st);
+            }
+            out[t][2] += m.capacity(1.0, st, dwell);
+            out[t][3] += m.capacity(-1.0, st, dwell);
+        }
+        out
+    }
+
+    /// Right-hand side for the given modes.
+    pub fn rhs(&self, y: &[f64], dy: &mut [f64], inp: &Inputs, modes: &[MassMode; MAX_MASSES]) {
+        dy.iter_mut().for_each(|v| *v = 0.0);
+        let (head, fric) = dy.split_at_mut(self.i_fric);
+        let f = self.forces(y, inp, modes, Some(&mut fric[..self.n_fric]));
+        for j in 0..self.n_mass {
+            if modes[j] == MassMode::Stuck {
+                head[2 * j] = 0.0;
+                head[2 * j + 1] = 0.0;
+            } else {
+                head[2 * j] = y[2 * j + 1];
+                head[2 * j + 1] = (f[j][0] - f[j][1]) / self.mass_kg[j];
+            }
+        }
+        let u = self.applied_v(y, inp);
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (self.i_current, &self.params.actuator)
+        {
+            head[k] = (u
+                - motor.resistance_ohm * y[k]
+                - motor.back_emf_v_s_per_rad * y[1] / self.transmission_m_per_rad)
+                / motor.inductance_h;
+        }
+        if let (Some(k), Some(a)) = (self.i_amp, &self.params.amplifier) {
+            head[k] = (2.0 * std::f64::consts::PI * a.bandwidth_hz * (inp.u_v - y[k]))
+                .clamp(-a.slew_v_per_s, a.slew_v_per_s);
+        }
+        for j in 0..self.n_mass {
+            if let Some(k) = self.i_clock[j] {
+                head[k] = if modes[j] == MassMode::Stuck {
+                    1.0
+                } else {
+                    0.0
+                };
+            }
+        }
+        if let (Some(k), Some(m)) = (self.i_lag_motor, &self.params.motor_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            head[k] = (y[1] - y[k]) / tau;
+        }
+        if let (Some(k), TableFriction::Static(m)) = (self.i_lag_table, &self.params.table_friction)
+        {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            let t = self.table();
+            head[k] = (y[2 * t + 1] - y[k]) / tau;
+        }
+    }
+
+    /// Net force that the static maps of stuck mass `j` must hold, N, and its capacity in that
+    /// direction.
+    pub fn holding(
+        &self,
+        y: &[f64],
+        inp: &Inputs,
+        modes: &[MassMode; MAX_MASSES],
+        j: usize,
+    ) -> (f64, f64) {
+        let mut m = *modes;
+        m[j] = MassMode::Stuck;
+        let f = self.forces(y, inp, &m, None)[j];
+        let cap = if f[0] >= 0.0 { f[2] } else { f[3] };
+        (f[0], cap)
+    }
+
+    /// Event value per mass: v·d while slipping, capacity − |holding force| while stuck.
+    fn event_values(
+        &self,
+        y: &[f64],
+        inp: &Inputs,
+        modes: &[MassMode; MAX_MASSES],
+    ) -> [f64; MAX_MASSES] {
+        let mut e = [f64::INFINITY; MAX_MASSES];
+        for j in 0..self.n_mass {
+            e[j] = match modes[j] {
+                MassMode::Free => f64::INFINITY,
+                MassMode::Slip(d) => y[2 * j + 1] * d,
+                MassMode::Stuck => {
+                    let (f, cap) = self.holding(y, inp, modes, j);
+                    cap - f.abs()
+                }
+            };
+        }
+        e
+    }
+
+    /// Recorded friction forces: (motor side, table side), N, with the present modes.
+    pub fn friction_forces(
+        &self,
+        y: &[f64],
+        inp: &Inputs,
+        modes: &[MassMode; MAX_MASSES],
+    ) -> (f64, f64) {
+        let p = &self.params;
+        let t = self.table();
+        let vt = y[2 * t + 1];
+        let dt = Self::direction(modes[t], vt);
+        let st = self.level(&p.table_modulation, y[2 * t], inp);
+        let mut table = self.dynamic_friction(y, vt, dt, st, None);
+        let mut motor = 0.0;
+        let f = self.forces(y, inp, modes, None);
+        if p.motor_friction.is_some() {
+            motor = if modes[0] == MassMode::Stuck && t > 0 {
+                f[0][0]
+            } else {
+                f[0][1]
+            };
+        }
+        if matches!(p.table_friction, TableFriction::Static(_)) {
+            table += if modes[t] == MassMode::Stuck && t > 0 {
+                f[t][0]
+            } else {
+                f[t][1]
+            };
+        }
+        if t == 0 && modes[0] == MassMode::Stuck {
+            // Rigid and stuck: the static maps together hold the net force; attribute it to
+            // the motor map when there is one.
+            let hold = f[0][0];
+            if p.motor_friction.is_some() {
+                motor = hold;
+            } else {
+                table += hold;
+            }
+        }
+        (motor, table)
+    }
+}
+
+/// The drive over one segment (inputs and modes held), as an [`OdeSystem`] of padded size N.
+struct Segment<'a> {
+    drive: &'a Drive,
+    inp: Inputs,
+    modes: [MassMode; MAX_MASSES],
+}
+
+impl<const N: usize> OdeSystem<N> for Segment<'_> {
+    fn rhs(&self, y: &SVector<f64, N>, dy: &mut SVector<f64, N>) {
+        let n = self.drive.n_state;
+        self.drive.rhs(
+            &y.as_slice()[..n],
+            &mut dy.as_mut_slice()[..n],
+            &self.inp,
+            &self.modes,
+        );
+    }
+
+    fn jacobian(&self, y: &SVector<f64, N>, jac: &mut SMatrix<f64, N, N>) {
+        let n = self.drive.n_state;
+        jac.fill(0.0);
+        let mut f0 = [0.0; 32];
+        let mut f1 = [0.0; 32];
+        let mut yp = [0.0; 32];
+        yp[..n].copy_from_slice(&y.as_slice()[..n]);
+        self.drive
+            .rhs(&yp[..n], &mut f0[..n], &self.inp, &self.modes);
+        for c in 0..n {
+            let h = 1e-7 * yp[c].abs().max(self.drive.scales[c]);
+            let keep = yp[c];
+            yp[c] = keep + h;
+            let h = yp[c] - keep;
+            self.drive
+                .rhs(&yp[..n], &mut f1[..n], &self.inp, &self.modes);
+            yp[c] = keep;
+            for r in 0..n {
+                jac[(r, c)] = (f1[r] - f0[r]) / h;
+            }
+        }
+    }
+
+    fn event(&self, y: &SVector<f64, N>) -> Option<f64> {
+        let n = self.drive.n_state;
+        let e = self
+            .drive
+            .event_values(&y.as_slice()[..n], &self.inp, &self.modes);
+        let m = e.iter().copied().fold(f64::INFINITY, f64::min);
+        if m.is_finite() {
+            Some(m)
+        } else {
+            None
+        }
+    }
+}
+
+/// Events at one instant beyond which the mode logic is considered chattering (Zeno guard).
+const MAX_EVENTS_AT_ONE_INSTANT: usize = 4;
+
+/// A running component plant with state padded to `N`.
+#[derive(Debug, Clone)]
+pub struct DrivePlant<const N: usize> {
+    /// The model.
+    pub drive: Drive,
+    /// State (first `drive.n_state` entries used).
+    pub y: SVector<f64, N>,
+    /// Modes per mass.
+    pub modes: [MassMode; MAX_MASSES],
+    /// The integrator.
+    pub integrator: Rodas4<N>,
+    atol: SVector<f64, N>,
+}
+
+impl<const N: usize> DrivePlant<N>
+where
+    Const<N>: DimMin<Const<N>, Output = Const<N>>,
+{
+    fn new(drive: Drive, options: IntegratorOptions) -> Result<Self, ConfigError> {
+        let integrator = Rodas4::new(options)?;
+        let mut atol = SVector::<f64, N>::repeat(1.0);
+        // Tolerances relative to the position tolerance, scaled per state like the rigid
+        // plant: a velocity of 1e3/s, a force state σ·x, etc. (state scale / 1 mm).
+        for (k, s) in drive.scales.iter().enumerate() {
+            atol[k] = options.atol_position_m * s / 1e-3;
+        }
+        let modes = drive.initial_modes();
+        Ok(Self {
+            drive,
+            y: SVector::zeros(),
+            modes,
+            integrator,
+            atol,
+        })
+    }
+
+    fn resolve(&mut self, inp: &Inputs, force_stuck: bool) {
+        let n = self.drive.n_state;
+        let e = self
+            .drive
+            .event_values(&self.y.as_slice()[..n], inp, &self.modes);
+        let mut j = 0;
+        for k in 1..self.drive.n_mass {
+            if e[k] < e[j] {
+                j = k;
+            }
+        }
+        match self.modes[j] {
+            MassMode::Free => {}
+            MassMode::Slip(d) => {
+                self.y[2 * j + 1] = 0.0;
+                let (f, cap) = self
+                    .drive
+                    .holding(&self.y.as_slice()[..n], inp, &self.modes, j);
+                self.modes[j] = if f.abs() <= cap || force_stuck {
+                    if let Some(k) = self.drive.i_clock[j] {
+                        self.y[k] = 0.0;
+                    }
+                    MassMode::Stuck
+                } else if f.signum() == d {
+                    MassMode::Slip(d)
+                } else {
+                    MassMode::Slip(-d)
+                };
+            }
+            MassMode::Stuck => {
+                let (f, _) = self
+                    .drive
+                    .holding(&self.y.as_slice()[..n], inp, &self.modes, j);
+                self.modes[j] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
+            }
+        }
+    }
+
+    fn try_breakaway(&mut self, inp: &Inputs) {
+        let n = self.drive.n_state;
+        for j in 0..self.drive.n_mass {
+            if self.modes[j] == MassMode::Stuck {
+                let (f, cap) = self
+                    .drive
+                    .holding(&self.y.as_slice()[..n], inp, &self.modes, j);
+                if f.abs() > cap {
+                    self.modes[j] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
+                }
+            }
+        }
+    }
+
+    /// Advance from `t0` to `t1` with the inputs held, handling stick/slip events.
+    pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+        let mut t = t0;
+        let mut events_here = 0usize;
+        let mut t_last_event = f64::NEG_INFINITY;
+        loop {
+            if events_here < MAX_EVENTS_AT_ONE_INSTANT {
+                self.try_breakaway(inp);
+            }
+            let seg = Segment {
+                drive: &self.drive,
+                inp: *inp,
+                modes: self.modes,
+            };
+            match self
+                .integrator
+                .integrate(&seg, t, t1, &mut self.y, &self.atol)?
+            {
+                SegmentEnd::Reached => return Ok(()),
+                SegmentEnd::Event { t_s } => {
+                    if t_s - t_last_event <= self.integrator.options.event_tol_s {
+                        events_here += 1;
+                    } else {
+                        events_here = 0;
+                    }
+                    t_last_event = t_s;
+                    t = t_s;
+                    self.resolve(inp, events_here >= MAX_EVENTS_AT_ONE_INSTANT);
+                    if !self.y.iter().all(|v| v.is_finite()) {
+                        return Err(SimError::NonFinite {
+                            t_s: t,
+                            state: self.y.iter().copied().collect(),
+                        });
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A component plant of any size (the state is padded to the next supported size).
+#[derive(Debug, Clone)]
+pub enum AnyDrivePlant {
+    /// Up to 4 states.
+    N4(Box<DrivePlant<4>>),
+    /// Up to 6 states.
+    N6(Box<DrivePlant<6>>),
+    /// Up to 8 states.
+    N8(Box<DrivePlant<8>>),
+    /// Up to 12 states.
+    N12(Box<DrivePlant<12>>),
+    /// Up to 16 states.
+    N16(Box<DrivePlant<16>>),
+    /// Up to 24 states.
+    N24(Box<DrivePlant<24>>),
+}
+
+macro_rules! each {
+    ($s:expr, $p:ident => $body:expr) => {
+        match $s {
+            AnyDrivePlant::N4($p) => $body,
+            AnyDrivePlant::N6($p) => $body,
+            AnyDrivePlant::N8($p) => $body,
+            AnyDrivePlant::N12($p) => $body,
+            AnyDrivePlant::N16($p) => $body,
+            AnyDrivePlant::N24($p) => $body,
+        }
+    };
+}
+
+impl AnyDrivePlant {
+    /// Validate, lay out and build a plant at rest at x = 0.
+    pub fn new(params: DriveParams, options: IntegratorOptions) -> Result<Self, ConfigError> {
+        let drive = Drive::new(params)?;
+        Ok(match drive.n_state {
+            0..=4 => Self::N4(Box::new(DrivePlant::new(drive, options)?)),
+            5..=6 => Self::N6(Box::new(DrivePlant::new(drive, options)?)),
+            7..=8 => Self::N8(Box::new(DrivePlant::new(drive, options)?)),
+            9..=12 => Self::N12(Box::new(DrivePlant::new(drive, options)?)),
+            13..=16 => Self::N16(Box::new(DrivePlant::new(drive, options)?)),
+            _ => Self::N24(Box::new(DrivePlant::new(drive, options)?)),
+        })
+    }
+
+    /// Advance with the inputs held.
+    pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+        each!(self, p => p.advance(inp, t0, t1))
+    }
+
+    /// The model.
+    pub fn drive(&self) -> &Drive {
+        each!(self, p => &p.drive)
+    }
+
+    /// The used part of the state.
+    pub fn state(&self) -> &[f64] {
+        each!(self, p => &p.y.as_slice()[..p.drive.n_state])
+    }
+
+    /// Modes.
+    pub fn modes(&self) -> [MassMode; MAX_MASSES] {
+        each!(self, p => p.modes)
+    }
+
+    /// Integrator work counters.
+    pub fn stats(&self) -> Stats {
+        each!(self, p => p.integrator.stats)
+    }
+}

@@ -1,0 +1,52 @@
+//! The component plant against the rigid seed plant, and effect physics that are cheapest to
+//! check in Rust.
+use nanostage::drive::{AnyDrivePlant, DriveParams, Inputs, Link};
+use nanostage::presets::{seed_axis, seed_closed_loop};
+use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
+
+fn step(n: usize, size_m: f64) -> Vec<f64> {
+    (0..n).map(|k| if k < 5 { 0.0 } else { size_m }).collect()
+}
+
+#[test]
+fn component_plant_matches_rigid_plant_with_effects_off() {
+    let mut cfg = seed_closed_loop(1e-3);
+    cfg.integrator.rtol = 1e-9;
+    cfg.integrator.atol_position_m = 1e-13;
+    let r = step(400, 1e-3);
+    let rigid = run_closed_loop(&cfg, &r, None).expect("rigid run");
+    let mut ext = ExtendedConfig::from_closed_loop(&cfg);
+    ext.axis = None; // force the component plant
+    let comp = run_extended(&ext, &r, KnownInputs::default(), None).expect("component run");
+    let mut worst: f64 = 0.0;
+    for (a, b) in rigid.position_m.iter().zip(&comp.position_m) {
+        worst = worst.max((a - b).abs());
+    }
+    assert!(worst < 1e-9, "max |Δx| = {worst:e} m");
+    assert_eq!(rigid.encoder_counts, comp.encoder_counts);
+    assert_eq!(rigid.stuck, comp.stuck);
+}
+
+#[test]
+fn component_plant_holds_still_below_breakaway() {
+    let p = seed_axis();
+    let mut d = DriveParams::from_axis(&p);
+    d.n_links = 1;
+    d.links[0] = Link {
+        stiffness_n_per_m: 5e7,
+        damping_n_s_per_m: 2e3,
+        backlash_m: 2e-5,
+    };
+    let mut plant = AnyDrivePlant::new(d, Default::default()).expect("plant");
+    // A voltage well below breakaway (0.5 of the stall voltage of the static torque).
+    let m = p.motor;
+    let u = 0.5 * p.motor_friction.static_torque_nm / m.torque_constant_nm_per_a * m.resistance_ohm;
+    for k in 0..100 {
+        plant
+            .advance(&Inputs::voltage(u), k as f64 * 0.1, (k + 1) as f64 * 0.1)
+            .expect("advance");
+    }
+    let y = plant.state();
+    assert_eq!(y[0], 0.0, "motor side moved: {}", y[0]);
+    assert_eq!(y[2], 0.0, "table moved: {}", y[2]);
+}
