@@ -511,6 +511,7 @@ struct PyCascade {
 }
 
 #[derive(FromPyObject)]
+#[allow(clippy::large_enum_variant)] // extracted once per call
 enum PyAnyController {
     Fpga(PyPid),
     Cascade(PyCascade),

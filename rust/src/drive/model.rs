@@ -485,13 +485,9 @@ impl Drive {
             head[k] = (2.0 * std::f64::consts::PI * a.bandwidth_hz * (inp.u_v - y[k]))
                 .clamp(-a.slew_v_per_s, a.slew_v_per_s);
         }
-        for j in 0..self.n_mass {
-            if let Some(k) = self.i_clock[j] {
-                head[k] = if modes[j] == MassMode::Stuck {
-                    1.0
-                } else {
-                    0.0
-                };
+        for (clock, mode) in self.i_clock.iter().zip(modes).take(self.n_mass) {
+            if let Some(k) = *clock {
+                head[k] = if *mode == MassMode::Stuck { 1.0 } else { 0.0 };
             }
         }
         if let (Some(k), Some(m)) = (self.i_lag_motor, &self.params.motor_friction) {
