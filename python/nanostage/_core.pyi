@@ -9,15 +9,17 @@ __all__ = [
     "ConfigError",
     "SimulationError",
     "__version__",
+    "friction_response",
     "fxp_requantize",
     "pid_run",
     "seed_values",
-    "simulate_system",
     "simulate_open_loop",
+    "simulate_system",
+    "simulate_system_open_loop",
     "validate_controller",
     "validate_integrator",
-    "validate_system",
     "validate_plant",
+    "validate_system",
 ]
 
 __version__: str
@@ -57,3 +59,17 @@ def validate_plant(plant: Any) -> None: ...
 def validate_controller(controller: Any) -> None: ...
 def validate_integrator(integrator: Any) -> None: ...
 def validate_system(system: Any) -> None: ...
+def simulate_system_open_loop(
+    system: Any,
+    voltage_v: npt.NDArray[np.float64],
+    sample_period_s: float,
+    force_n: npt.NDArray[np.float64] | None = None,
+) -> dict[str, Any]: ...
+def friction_response(
+    friction: Any,
+    time_s: npt.NDArray[np.float64],
+    position_m: npt.NDArray[np.float64],
+    velocity_m_per_s: npt.NDArray[np.float64],
+    integrator: Any,
+    terms: list[tuple[float, float, float]] = ...,
+) -> npt.NDArray[np.float64]: ...

@@ -104,7 +104,11 @@ class PositionFriction:
 
 
 def lead_periodic_friction(
-    *, side: Side = "motor", lead_m: float, amplitudes: tuple[float, ...], phases_rad: tuple[float, ...]
+    *,
+    side: Side = "motor",
+    lead_m: float,
+    amplitudes: tuple[float, ...],
+    phases_rad: tuple[float, ...],
 ) -> PositionFriction:
     """Friction periodic with the screw lead: harmonic ``k`` (1-based) of relative amplitude
     ``amplitudes[k-1]`` and phase ``phases_rad[k-1]``."""

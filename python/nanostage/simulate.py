@@ -21,9 +21,11 @@ from . import _core
 from .config import FpgaPid, IntegratorOptions, Plant, System
 
 __all__ = [
+    "DriveOpenLoopTrace",
     "OpenLoopTrace",
     "Trace",
     "simulate",
+    "simulate_open_loop",
     "simulate_plant",
     "simulate_step",
     "step_reference",
@@ -270,3 +272,40 @@ def simulate_plant(
         plant, integrator or IntegratorOptions(), u, float(sample_period_s)
     )
     return OpenLoopTrace(**out)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DriveOpenLoopTrace:
+    """The component plant driven open loop; ``n + 1`` samples including t = 0."""
+
+    time_s: FloatArray
+    position_m: FloatArray
+    motor_position_m: FloatArray
+    velocity_m_per_s: FloatArray
+    motor_friction_force_n: FloatArray
+    table_friction_force_n: FloatArray
+    stuck: BoolArray
+    stats: dict[str, int]
+
+
+def simulate_open_loop(
+    system: System,
+    voltage_v: npt.ArrayLike,
+    *,
+    sample_period_s: float,
+    force_n: npt.ArrayLike | None = None,
+) -> DriveOpenLoopTrace:
+    """Drive the plant of ``system`` with all its effects, without the controller:
+    ``voltage_v[k]`` (motor voltage, or drive command of a force drive) and ``force_n[k]``
+    (on the table, +x) held on ``[k·T, (k+1)·T)``; starts at rest. Always runs the component
+    plant (``rust/src/drive``)."""
+    u = np.ascontiguousarray(voltage_v, dtype=np.float64)
+    if u.ndim != 1:
+        raise _core.ConfigError(
+            f"voltage_v = array of shape {u.shape} is invalid: expected a 1-D array"
+        )
+    _check_samples(u.size, "voltage_v (length)", u.size)
+    out = _core.simulate_system_open_loop(
+        system, u, float(sample_period_s), _series(force_n, "force_n", u.size)
+    )
+    return DriveOpenLoopTrace(**out)

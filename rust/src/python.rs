@@ -14,8 +14,8 @@ use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Stats};
 use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
 use crate::sim::{
-    run_extended, run_open_loop, ControllerKind, ExtendedConfig, Interferometer, KnownInputs,
-    Sensors, SpreadDistribution, StochasticFriction, Trace,
+    run_drive_open_loop, run_extended, run_open_loop, ControllerKind, ExtendedConfig,
+    Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction, Trace,
 };
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::create_exception;
@@ -774,6 +774,80 @@ fn trace_dict(py: Python<'_>, tr: Trace) -> PyResult<Bound<'_, PyDict>> {
     Ok(d)
 }
 
+/// Drive the component plant of a `System` alone (actuator command and force per sample).
+#[pyfunction]
+#[pyo3(signature = (system, voltage_v, sample_period_s, force_n=None))]
+fn simulate_system_open_loop<'py>(
+    py: Python<'py>,
+    system: PySystem,
+    voltage_v: PyReadonlyArray1<'py, f64>,
+    sample_period_s: f64,
+    force_n: Option<PyReadonlyArray1<'py, f64>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let cfg = build_system(&system, 0).map_err(config_err)?;
+    let u: Vec<f64> = voltage_v.as_array().to_vec();
+    let f = optional_series(&force_n);
+    let tr = py
+        .detach(|| run_drive_open_loop(&cfg, &u, &f, sample_period_s))
+        .map_err(sim_err)?;
+    let d = PyDict::new(py);
+    d.set_item("stats", stats_dict(py, &tr.stats)?)?;
+    d.set_item("time_s", tr.time_s.into_pyarray(py))?;
+    d.set_item("position_m", tr.position_m.into_pyarray(py))?;
+    d.set_item("motor_position_m", tr.motor_position_m.into_pyarray(py))?;
+    d.set_item("velocity_m_per_s", tr.velocity_m_per_s.into_pyarray(py))?;
+    d.set_item(
+        "motor_friction_force_n",
+        tr.motor_friction_force_n.into_pyarray(py),
+    )?;
+    d.set_item(
+        "table_friction_force_n",
+        tr.table_friction_force_n.into_pyarray(py),
+    )?;
+    d.set_item("stuck", tr.stuck.into_pyarray(py))?;
+    Ok(d)
+}
+
+#[derive(FromPyObject)]
+enum PyAnyFriction {
+    Table(PyTableFriction),
+    Dahl(PyDahl),
+}
+
+/// The force of one friction component along a prescribed motion.
+#[pyfunction]
+#[pyo3(signature = (friction, time_s, position_m, velocity_m_per_s, integrator, terms=Vec::new()))]
+fn friction_response<'py>(
+    py: Python<'py>,
+    friction: PyAnyFriction,
+    time_s: PyReadonlyArray1<'py, f64>,
+    position_m: PyReadonlyArray1<'py, f64>,
+    velocity_m_per_s: PyReadonlyArray1<'py, f64>,
+    integrator: PyIntegrator,
+    terms: Vec<(f64, f64, f64)>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let tf = match &friction {
+        PyAnyFriction::Table(t) => t.to_core().map_err(config_err)?,
+        PyAnyFriction::Dahl(d) => TableFriction::Dahl(DahlFriction {
+            coulomb_force_n: d.coulomb_force_n,
+            stiffness_n_per_m: d.stiffness_n_per_m,
+            exponent: d.exponent,
+        }),
+    };
+    let mut m = Modulation::default();
+    modulation(&terms, &mut m).map_err(config_err)?;
+    let opts = IntegratorOptions::from(&integrator);
+    let (t, x, v) = (
+        time_s.as_array().to_vec(),
+        position_m.as_array().to_vec(),
+        velocity_m_per_s.as_array().to_vec(),
+    );
+    let f = py
+        .detach(|| crate::drive::friction_response(&tf, &m, &t, &x, &v, &opts))
+        .map_err(sim_err)?;
+    Ok(f.into_pyarray(py).into_any())
+}
+
 /// Validate a whole `System` (raises ConfigError naming the field).
 #[pyfunction]
 fn validate_system(system: PySystem) -> PyResult<()> {
@@ -1052,6 +1126,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SimulationError", py.get_type::<SimulationError>())?;
     m.add_function(wrap_pyfunction!(simulate_system, m)?)?;
     m.add_function(wrap_pyfunction!(validate_system, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate_system_open_loop, m)?)?;
+    m.add_function(wrap_pyfunction!(friction_response, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_open_loop, m)?)?;
     m.add_function(wrap_pyfunction!(pid_run, m)?)?;
     m.add_function(wrap_pyfunction!(fxp_requantize, m)?)?;

@@ -4,6 +4,7 @@
 //! (analytic Jacobian, exact stuck phases); the two agree (tests/drive.rs).
 mod model;
 mod params;
+mod response;
 
 pub use model::{
     AnyDrivePlant, Drive, DrivePlant, Inputs, MassMode, GMS_ELASTIC_FRACTION, MAX_MASSES,
@@ -12,3 +13,4 @@ pub use params::{
     Actuator, Amplifier, DriveParams, DwellStatic, Gms, Link, LuGre, Modulation, Side, StaticMap,
     TableFriction, MAX_GMS_ELEMENTS, MAX_MODULATION_TERMS,
 };
+pub use response::friction_response;

@@ -154,6 +154,59 @@ fn gms_rate(z: f64, z_max: f64, v: f64) -> f64 {
     v * (1.0 - alpha)
 }
 
+impl TableFriction {
+    /// Number of internal states (Dahl, LuGre: 1; GMS: one per element; static maps: 0).
+    pub fn n_states(&self) -> usize {
+        match self {
+            Self::Dahl(_) | Self::LuGre(_) => 1,
+            Self::Gms(g) => g.n_elements,
+            Self::None | Self::Static(_) => 0,
+        }
+    }
+
+    /// Force of the dynamic part (Dahl, LuGre, GMS; 0 for static maps and none) at states
+    /// `z`, velocity `v`, slip direction `d` (0: at rest or unknown) and level scale `s`;
+    /// writes the state rates to `dfric` when given.
+    pub fn dynamic(&self, z: &[f64], v: f64, d: f64, s: f64, dfric: Option<&mut [f64]>) -> f64 {
+        match self {
+            Self::Dahl(p) => {
+                let scaled = DahlFriction {
+                    coulomb_force_n: p.coulomb_force_n * s,
+                    ..*p
+                };
+                if let Some(dz) = dfric {
+                    // The direction d of the slip segment replaces sgn v (1 when free).
+                    let dd = if d == 0.0 { 1.0 } else { d };
+                    dz[0] = scaled.rate(v, z[0], dd).0;
+                }
+                z[0]
+            }
+            Self::LuGre(p) => {
+                let g = p.g(v, s);
+                let zdot = v - p.stiffness_n_per_m * v.abs() * z[0] / g;
+                if let Some(dz) = dfric {
+                    dz[0] = zdot;
+                }
+                p.stiffness_n_per_m * z[0] + p.damping_n_s_per_m * zdot + p.viscous_n_s_per_m * v
+            }
+            Self::Gms(p) => {
+                let sv = p.slip_force(v, s);
+                let mut f = p.viscous_n_s_per_m * v;
+                let mut rates = dfric;
+                for i in 0..p.n_elements {
+                    let z_max = p.weights[i] * sv / p.stiffness_n_per_m[i];
+                    if let Some(dz) = rates.as_deref_mut() {
+                        dz[i] = gms_rate(z[i], z_max, v);
+                    }
+                    f += p.stiffness_n_per_m[i] * z[i];
+                }
+                f
+            }
+            Self::None | Self::Static(_) => 0.0,
+        }
+    }
+}
+
 impl Drive {
     /// Validate and build the layout.
     pub fn new(params: DriveParams) -> Result<Self, ConfigError> {
@@ -369,42 +422,12 @@ impl Drive {
         dfric: Option<&mut [f64]>,
     ) -> f64 {
         let z = &y[self.i_fric..self.i_fric + self.n_fric];
-        match &self.params.table_friction {
-            TableFriction::Dahl(p) => {
-                let scaled = DahlFriction {
-                    coulomb_force_n: p.coulomb_force_n * s,
-                    ..*p
-                };
-                if let Some(dz) = dfric {
-                    // The direction d of the slip segment replaces sgn v (1 when free).
-                    let dd = if d == 0.0 { 1.0 } else { d };
-                    dz[0] = scaled.rate(v, z[0], dd).0;
-                }
-                z[0]
-            }
-            TableFriction::LuGre(p) => {
-                let g = p.g(v, s);
-                let zdot = v - p.stiffness_n_per_m * v.abs() * z[0] / g;
-                if let Some(dz) = dfric {
-                    dz[0] = zdot;
-                }
-                p.stiffness_n_per_m * z[0] + p.damping_n_s_per_m * zdot + p.viscous_n_s_per_m * v
-            }
-            TableFriction::Gms(p) => {
-                let sv = p.slip_force(v, s);
-                let mut f = p.viscous_n_s_per_m * v;
-                let mut rates = dfric;
-                for i in 0..p.n_elements {
-                    let z_max = p.weights[i] * sv / p.stiffness_n_per_m[i];
-                    if let Some(dz) = rates.as_deref_mut() {
-                        dz[i] = gms_rate(z[i], z_max, v);
-                    }
-                    f += p.stiffness_n_per_m[i] * z[i];
-                }
-                f
-            }
-            _ => 0.0,
-        }
+        self.params.table_friction.dynamic(z, v, d, s, dfric)
+    }
+
+    /// The modulation factor `1 + Σ a_k·cos(κ_k·x + φ_k)` at `x`.
+    pub fn modulation_factor(m: &Modulation, x: f64) -> f64 {
+        modulation(m, x).0
     }
 
     /// Friction level scale of a side at position `x`.

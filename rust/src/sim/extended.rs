@@ -518,3 +518,67 @@ pub fn run_extended(
     tr.stats = plant.stats();
     Ok(tr)
 }
+
+/// What an open-loop run of the component plant recorded, at t_k = k·T for k = 0..=n.
+#[derive(Debug, Clone, Default)]
+pub struct DriveOpenLoopTrace {
+    /// Sample instants, s.
+    pub time_s: Vec<f64>,
+    /// Table position, m.
+    pub position_m: Vec<f64>,
+    /// Motor-side position at the table, m.
+    pub motor_position_m: Vec<f64>,
+    /// Table velocity, m/s.
+    pub velocity_m_per_s: Vec<f64>,
+    /// Motor-side friction force, N.
+    pub motor_friction_force_n: Vec<f64>,
+    /// Table friction force, N.
+    pub table_friction_force_n: Vec<f64>,
+    /// Motor side or table stuck.
+    pub stuck: Vec<bool>,
+    /// Integrator work counters.
+    pub stats: Stats,
+}
+
+/// Drive the component plant of `cfg` alone: `voltage_v[k]` (actuator command) and
+/// `force_n[k]` (empty: none) held on `[k·T, (k+1)·T)`. Starts at rest.
+pub fn run_drive_open_loop(
+    cfg: &ExtendedConfig,
+    voltage_v: &[f64],
+    force_n: &[f64],
+    sample_period_s: f64,
+) -> Result<DriveOpenLoopTrace, SimError> {
+    crate::error::check_positive("sample_period_s", sample_period_s, 10.0)?;
+    let n = voltage_v.len();
+    check_samples(n)?;
+    check_series("voltage_v", voltage_v, n)?;
+    check_series("force_n", force_n, n)?;
+    let mut plant = AnyPlant::Drive(
+        AnyDrivePlant::new(cfg.drive, cfg.integrator).map_err(|e| e.within("plant"))?,
+    );
+    let mut tr = DriveOpenLoopTrace::default();
+    let record = |plant: &AnyPlant, t: f64, inp: &Inputs, tr: &mut DriveOpenLoopTrace| {
+        let (x_t, x_m, v_t, _, f_m, f_t, stuck) = plant.observe(inp);
+        tr.time_s.push(t);
+        tr.position_m.push(x_t);
+        tr.motor_position_m.push(x_m);
+        tr.velocity_m_per_s.push(v_t);
+        tr.motor_friction_force_n.push(f_m);
+        tr.table_friction_force_n.push(f_t);
+        tr.stuck.push(stuck);
+    };
+    let mut inp = Inputs::voltage(0.0);
+    for (k, &u_v) in voltage_v.iter().enumerate() {
+        inp = Inputs {
+            u_v,
+            force_n: force_n.get(k).copied().unwrap_or(0.0),
+            friction_scale: 1.0,
+        };
+        let t0 = k as f64 * sample_period_s;
+        record(&plant, t0, &inp, &mut tr);
+        plant.advance(&inp, t0, (k + 1) as f64 * sample_period_s)?;
+    }
+    record(&plant, n as f64 * sample_period_s, &inp, &mut tr);
+    tr.stats = plant.stats();
+    Ok(tr)
+}

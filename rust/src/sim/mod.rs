@@ -4,7 +4,7 @@ mod extended;
 mod trial;
 
 pub use extended::{
-    run_extended, stream_seed, ControllerKind, ExtendedConfig, Interferometer, KnownInputs,
-    Sensors, SpreadDistribution, StochasticFriction,
+    run_drive_open_loop, run_extended, stream_seed, ControllerKind, DriveOpenLoopTrace,
+    ExtendedConfig, Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction,
 };
 pub use trial::{run_closed_loop, run_open_loop, ClosedLoopConfig, OpenLoopTrace, Trace};
