@@ -85,12 +85,17 @@ class Experiment:
     def window(self, start_s: float, stop_s: float, name: str | None = None) -> Experiment:
         """The samples with ``start_s <= time_s < stop_s``, time kept as is."""
         keep = (self.time_s >= start_s) & (self.time_s < stop_s)
-        cols = {
-            c: (None if getattr(self, c) is None else getattr(self, c)[keep])
-            for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS
-        }
+        def cut(a: FloatArray | None) -> FloatArray | None:
+            return None if a is None else a[keep]
+
         return Experiment(
             name=name or f"{self.name}[{start_s:g}:{stop_s:g} s]",
             source=f"{self.source} window [{start_s:g}, {stop_s:g}) s",
-            **cols,
+            time_s=self.time_s[keep],
+            reference_m=self.reference_m[keep],
+            position_m=self.position_m[keep],
+            command_v=cut(self.command_v),
+            interferometer_m=cut(self.interferometer_m),
+            disturbance_v=cut(self.disturbance_v),
+            disturbance_n=cut(self.disturbance_n),
         )

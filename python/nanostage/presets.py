@@ -229,5 +229,8 @@ def seed(step_m: float = 1e-3) -> System:
 
 
 def with_gains(system: System, *, kp: float, ki: float, kd: float) -> System:
-    """A copy of ``system`` with other PID gains."""
-    return replace(system, controller=replace(system.controller, kp=kp, ki=ki, kd=kd))
+    """A copy of ``system`` (with an FPGA PID) with other PID gains."""
+    ctl = system.controller
+    if not isinstance(ctl, FpgaPid):
+        raise TypeError(f"with_gains needs an FpgaPid controller, not {type(ctl).__name__}")
+    return replace(system, controller=replace(ctl, kp=kp, ki=ki, kd=kd))

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from . import presets
 from .analysis import StepMetrics, step_metrics
-from .config import Plant
+from .config import FpgaPid, Plant
 from .simulate import Trace, simulate_step
 
 #: (step size, simulated duration) of the paper's experiments.
@@ -57,6 +57,7 @@ def run_experiments() -> list[Experiment]:
         system = presets.seed(step)
         tr = simulate_step(system, step, duration_s=duration)
         c = system.controller
+        assert isinstance(c, FpgaPid)
         out.append(
             Experiment(step_m=step, gains=(c.kp, c.ki, c.kd), trace=tr, metrics=step_metrics(tr))
         )
@@ -95,6 +96,7 @@ def reproduce(out_dir: str | Path, *, plot: bool = True) -> dict[str, object]:
     compute_s = time.perf_counter() - t0
     system = presets.seed()
     v_lim = system.output_stage.amplifier_limit_v
+    assert isinstance(system.plant, Plant)
     v_slew = slew_velocity_m_per_s(system.plant, v_lim)
     summary: dict[str, object] = {
         "steps": [
