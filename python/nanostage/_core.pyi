@@ -39,6 +39,7 @@ def simulate_system(
     force_disturbance_n: npt.NDArray[np.float64] | None = None,
     command_disturbance_v: npt.NDArray[np.float64] | None = None,
     seed: int = 0,
+    initial_position_m: float = 0.0,
 ) -> dict[str, Any]: ...
 def simulate_open_loop(
     plant: Any,

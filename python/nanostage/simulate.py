@@ -169,6 +169,7 @@ def simulate(
     force_disturbance_n: npt.ArrayLike | None = None,
     command_disturbance_v: npt.ArrayLike | None = None,
     seed: int = 0,
+    initial_position_m: float | None = None,
 ) -> Trace:
     """Run the closed loop over a reference trajectory.
 
@@ -185,6 +186,9 @@ def simulate(
     seed : int
         Seed of every random draw (stochastic friction, noise, jitter); the same seed gives a
         bit-identical run.
+    initial_position_m : float, optional
+        Where the axis rests at t = 0 (every mass, links relaxed), m. Default: the first
+        reference value.
 
     Returns
     -------
@@ -212,6 +216,7 @@ def simulate(
         _series(force_disturbance_n, "force_disturbance_n", ref.size),
         _series(command_disturbance_v, "command_disturbance_v", ref.size),
         int(seed),
+        float(ref[0] if initial_position_m is None else initial_position_m),
     )
     if out["interferometer_m"].size == 0:
         out["interferometer_m"] = None

@@ -558,7 +558,11 @@ fn modulation(terms: &[(f64, f64, f64)], into: &mut Modulation) -> Result<(), Co
 }
 
 /// Build the core configuration of a `System` (all validation happens in the core).
-fn build_system(sys: &PySystem, seed: u64) -> Result<ExtendedConfig, CoreConfigError> {
+fn build_system(
+    sys: &PySystem,
+    seed: u64,
+    initial_position_m: f64,
+) -> Result<ExtendedConfig, CoreConfigError> {
     let fx = &sys.effects;
     let (mut drive, axis) = match &sys.plant {
         PyAnyPlant::Seed(p) => {
@@ -691,6 +695,7 @@ fn build_system(sys: &PySystem, seed: u64) -> Result<ExtendedConfig, CoreConfigE
         stochastic,
         seed,
         integrator: (&sys.integrator).into(),
+        initial_position_m,
     };
     cfg.validate()?;
     Ok(cfg)
@@ -713,7 +718,7 @@ fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
 
 /// Run the closed loop of a `System`; returns a dict of per-sample numpy arrays plus `stats`.
 #[pyfunction]
-#[pyo3(signature = (system, reference_m, force_disturbance_n=None, command_disturbance_v=None, seed=0))]
+#[pyo3(signature = (system, reference_m, force_disturbance_n=None, command_disturbance_v=None, seed=0, initial_position_m=0.0))]
 fn simulate_system<'py>(
     py: Python<'py>,
     system: PySystem,
@@ -721,8 +726,9 @@ fn simulate_system<'py>(
     force_disturbance_n: Option<PyReadonlyArray1<'py, f64>>,
     command_disturbance_v: Option<PyReadonlyArray1<'py, f64>>,
     seed: u64,
+    initial_position_m: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let cfg = build_system(&system, seed).map_err(config_err)?;
+    let cfg = build_system(&system, seed, initial_position_m).map_err(config_err)?;
     let reference: Vec<f64> = reference_m.as_array().to_vec();
     let force = optional_series(&force_disturbance_n);
     let command = optional_series(&command_disturbance_v);
@@ -784,7 +790,7 @@ fn simulate_system_open_loop<'py>(
     sample_period_s: f64,
     force_n: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let cfg = build_system(&system, 0).map_err(config_err)?;
+    let cfg = build_system(&system, 0, 0.0).map_err(config_err)?;
     let u: Vec<f64> = voltage_v.as_array().to_vec();
     let f = optional_series(&force_n);
     let tr = py
@@ -851,7 +857,9 @@ fn friction_response<'py>(
 /// Validate a whole `System` (raises ConfigError naming the field).
 #[pyfunction]
 fn validate_system(system: PySystem) -> PyResult<()> {
-    build_system(&system, 0).map(|_| ()).map_err(config_err)
+    build_system(&system, 0, 0.0)
+        .map(|_| ())
+        .map_err(config_err)
 }
 
 /// Drive the plant alone with a held voltage per sample.

@@ -855,6 +855,15 @@ impl AnyDrivePlant {
         each!(self, p => p.modes)
     }
 
+    /// Place every mass at `x_m` (links relaxed, at the centre of any dead band).
+    pub fn set_position(&mut self, x_m: f64) {
+        each!(self, p => {
+            for j in 0..p.drive.n_mass {
+                p.y[2 * j] = x_m;
+            }
+        })
+    }
+
     /// Integrator work counters.
     pub fn stats(&self) -> Stats {
         each!(self, p => p.integrator.stats)

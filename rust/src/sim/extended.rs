@@ -167,6 +167,8 @@ pub struct ExtendedConfig {
     pub seed: u64,
     /// Integrator options.
     pub integrator: IntegratorOptions,
+    /// Initial position of every mass (at rest, relaxed), m, in [−10, 10].
+    pub initial_position_m: f64,
 }
 
 impl ExtendedConfig {
@@ -185,6 +187,7 @@ impl ExtendedConfig {
             stochastic: None,
             seed: 0,
             integrator: cfg.integrator,
+            initial_position_m: 0.0,
         }
     }
 
@@ -229,6 +232,7 @@ impl ExtendedConfig {
         if let Some(s) = &self.stochastic {
             s.validate().map_err(|e| e.within("stochastic"))?;
         }
+        check_range("initial_position_m", self.initial_position_m, -10.0, 10.0)?;
         self.integrator
             .validate()
             .map_err(|e| e.within("integrator"))
@@ -356,6 +360,10 @@ pub fn run_extended(
             AnyDrivePlant::new(cfg.drive, cfg.integrator).map_err(|e| e.within("plant"))?,
         ),
     };
+    match &mut plant {
+        AnyPlant::Rigid(p) => p.y[0] = cfg.initial_position_m,
+        AnyPlant::Drive(p) => p.set_position(cfg.initial_position_m),
+    }
     let t_s = cfg.sample_period_s();
     let latency_s = match &cfg.controller {
         ControllerKind::Fpga { pid, .. } => pid.latency_ticks as f64 / pid.clock_hz,
