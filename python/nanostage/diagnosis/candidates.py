@@ -1,0 +1,672 @@
+"""Candidate effects for the gap diagnosis: for each effect name of the effect library, how
+to add it to a nominal :class:`~nanostage.System` with a vector of physical parameters, the
+parameters' bounds and start values, and the signature it leaves in a response.
+
+Every candidate works on the nominal model as given: it *adds* one effect (or, for the
+friction-model candidates, *replaces* the table friction model). Parameters are fitted in a
+normalised coordinate (linear or logarithmic between the bounds).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+from ..config import ForceDrivePlant, FpgaPid, Plant, System
+from ..effect_names import EFFECT_NAMES
+from ..effects import (
+    AmplifierDynamics,
+    Backlash,
+    DriveCompliance,
+    DwellStaticFriction,
+    EncoderErrors,
+    Gms,
+    LuGre,
+    PositionFriction,
+    StaticFrictionMap,
+)
+
+__all__ = [
+    "CANDIDATES",
+    "NOT_CANDIDATES",
+    "Candidate",
+    "Param",
+    "applicable_candidates",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Param:
+    """One fitted parameter of a candidate."""
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    initial: float
+    log: bool = False
+
+    def to_unit(self, value: float) -> float:
+        """Physical value → normalised coordinate in [0, 1]."""
+        if self.log:
+            return (math.log(value) - math.log(self.lower)) / (
+                math.log(self.upper) - math.log(self.lower)
+            )
+        return (value - self.lower) / (self.upper - self.lower)
+
+    def from_unit(self, u: float) -> float:
+        """Normalised coordinate → physical value."""
+        u = min(max(u, 0.0), 1.0)
+        if self.log:
+            return math.exp(
+                math.log(self.lower) + u * (math.log(self.upper) - math.log(self.lower))
+            )
+        return self.lower + u * (self.upper - self.lower)
+
+
+Apply = Callable[[System, Sequence[float]], System]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Candidate:
+    """A candidate effect: its stable name, parameters, how it augments a system, and the
+    signature it leaves in a response (in words, for the report)."""
+
+    name: str
+    params: tuple[Param, ...]
+    apply: Apply
+    signature: str
+    #: Integer settings tried one by one instead of fitted (delays), else empty.
+    discrete: tuple[int, ...] = ()
+
+
+def _fx(system: System, **changes: object) -> System:
+    return replace(system, effects=replace(system.effects, **changes))  # type: ignore[arg-type]
+
+
+def _table_levels(system: System) -> tuple[float, float]:
+    """(Coulomb, static) force level of the table-side friction of the nominal model, N."""
+    tf = system.effects.table_friction
+    if isinstance(tf, StaticFrictionMap | LuGre | Gms):
+        return tf.coulomb_force_n, tf.static_force_n
+    p = system.plant
+    if isinstance(p, ForceDrivePlant):
+        return p.friction.coulomb_force_n, p.friction.static_force_n
+    return p.dahl.coulomb_force_n, p.dahl.coulomb_force_n
+
+
+def _presliding_stiffness(system: System) -> float:
+    p = system.plant
+    if isinstance(p, Plant):
+        return p.dahl.stiffness_n_per_m
+    return 1e7
+
+
+def _static_side(system: System) -> str:
+    """Which side carries the nominal model's static map (where stiction acts)."""
+    return "motor" if isinstance(system.plant, Plant) else "table"
+
+
+def _modify_static(system: System, **changes: object) -> System:
+    """Apply modifiers to the nominal static map (motor map of the seed, table map of a
+    force drive)."""
+    p = system.plant
+    if isinstance(p, Plant):
+        mods = replace(system.effects.motor_friction, **changes)  # type: ignore[arg-type]
+        return _fx(system, motor_friction=mods)
+    return replace(system, plant=replace(p, friction=replace(p.friction, **changes)))  # type: ignore[arg-type]
+
+
+def _lead_m(system: System) -> float:
+    p = system.plant
+    return p.screw.lead_m if isinstance(p, Plant) else 2.5e-3
+
+
+def _add_position_term(system: System, pf: PositionFriction) -> System:
+    return _fx(system, position_friction=(*system.effects.position_friction, pf))
+
+
+def _harmonic(kappa: float, c: float, s: float) -> tuple[float, float, float]:
+    """``c·cos κx + s·sin κx`` as (amplitude, κ, phase)."""
+    return (math.hypot(c, s), kappa, math.atan2(-s, c))
+
+
+def _build() -> dict[str, Callable[[System], Candidate | str]]:
+    """Factories: nominal system → candidate, or the reason it does not apply."""
+
+    def coulomb_viscous(sys: System) -> Candidate | str:
+        fc, _ = _table_levels(sys)
+        return Candidate(
+            name="coulomb_viscous",
+            params=(
+                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
+                Param(
+                    name="viscous_n_s_per_m",
+                    unit="N·s/m",
+                    lower=1.0,
+                    upper=1e5,
+                    initial=100.0,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s,
+                table_friction=StaticFrictionMap(
+                    static_force_n=v[0], coulomb_force_n=v[0], viscous_n_s_per_m=v[1]
+                ),
+            ),
+            signature="rate-independent sliding friction with true stiction: final errors "
+            "(stick before the target) and a speed-dependent slew",
+        )
+
+    def stribeck(sys: System) -> Candidate | str:
+        fc, _ = _table_levels(sys)
+        return Candidate(
+            name="stribeck",
+            params=(
+                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
+                Param(
+                    name="static_excess_n",
+                    unit="N",
+                    lower=0.01 * fc,
+                    upper=2 * fc,
+                    initial=0.3 * fc,
+                    log=True,
+                ),
+                Param(
+                    name="stribeck_velocity_m_per_s",
+                    unit="m/s",
+                    lower=1e-5,
+                    upper=1e-2,
+                    initial=5e-4,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s,
+                table_friction=StaticFrictionMap(
+                    static_force_n=v[0] + v[1],
+                    coulomb_force_n=v[0],
+                    stribeck_velocity_m_per_s=v[2],
+                ),
+            ),
+            signature="friction falling with speed at low velocity: a breakaway jump at the "
+            "start of moves and stick-slip while settling",
+        )
+
+    def dahl(sys: System) -> Candidate | str:
+        if isinstance(sys.plant, Plant) and sys.effects.table_friction is None:
+            return "the nominal model already uses Dahl friction on the table"
+        fc, _ = _table_levels(sys)
+        k = _presliding_stiffness(sys)
+        return Candidate(
+            name="dahl",
+            params=(
+                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
+                Param(
+                    name="stiffness_n_per_m",
+                    unit="N/m",
+                    lower=k / 100,
+                    upper=k * 100,
+                    initial=k,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _dahl(s, v),
+            signature="presliding spring with rate-independent hysteresis: rounded start and "
+            "end of moves, sub-count creep after reversals",
+        )
+
+    def lugre(sys: System) -> Candidate | str:
+        fc, _ = _table_levels(sys)
+        k = _presliding_stiffness(sys)
+        return Candidate(
+            name="lugre",
+            params=(
+                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
+                Param(
+                    name="static_excess_n",
+                    unit="N",
+                    lower=0.01 * fc,
+                    upper=2 * fc,
+                    initial=0.3 * fc,
+                    log=True,
+                ),
+                Param(
+                    name="stiffness_n_per_m",
+                    unit="N/m",
+                    lower=k / 100,
+                    upper=k * 100,
+                    initial=k,
+                    log=True,
+                ),
+                Param(
+                    name="stribeck_velocity_m_per_s",
+                    unit="m/s",
+                    lower=1e-5,
+                    upper=1e-2,
+                    initial=5e-4,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s,
+                table_friction=LuGre(
+                    stiffness_n_per_m=v[2],
+                    damping_n_s_per_m=0.0,
+                    viscous_n_s_per_m=0.0,
+                    coulomb_force_n=v[0],
+                    static_force_n=v[0] + v[1],
+                    stribeck_velocity_m_per_s=v[3],
+                ),
+            ),
+            signature="presliding spring plus a Stribeck curve: breakaway overshoot of the "
+            "friction force and hysteresis in presliding",
+        )
+
+    def gms(sys: System) -> Candidate | str:
+        fc, _ = _table_levels(sys)
+        k = _presliding_stiffness(sys)
+        return Candidate(
+            name="gms",
+            params=(
+                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
+                Param(
+                    name="static_excess_n",
+                    unit="N",
+                    lower=0.01 * fc,
+                    upper=2 * fc,
+                    initial=0.3 * fc,
+                    log=True,
+                ),
+                Param(
+                    name="stiffness_n_per_m",
+                    unit="N/m",
+                    lower=k / 100,
+                    upper=k * 100,
+                    initial=k,
+                    log=True,
+                ),
+                Param(
+                    name="stribeck_velocity_m_per_s",
+                    unit="m/s",
+                    lower=1e-5,
+                    upper=1e-2,
+                    initial=5e-4,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _fx(s, table_friction=gms3(v[0], v[0] + v[1], v[2], v[3])),
+            signature="Maxwell-slip presliding with non-local memory: hysteresis that depends "
+            "on the reversal history, plus a Stribeck curve",
+        )
+
+    def asymmetric(sys: System) -> Candidate | str:
+        return Candidate(
+            name="asymmetric_friction",
+            params=(Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),),
+            apply=lambda s, v: _modify_static(s, asymmetry=v[0]),
+            signature="different friction in + and − moves: direction-dependent slew speed, "
+            "overshoot and final error",
+        )
+
+    def dwell(sys: System) -> Candidate | str:
+        _fc, fs = _table_levels(sys)
+        base = fs if isinstance(sys.plant, ForceDrivePlant) else _motor_static_n(sys)
+        return Candidate(
+            name="dwell_static_friction",
+            params=(
+                Param(
+                    name="rise_n",
+                    unit="N",
+                    lower=0.01 * base,
+                    upper=3 * base,
+                    initial=0.3 * base,
+                    log=True,
+                ),
+                Param(
+                    name="time_constant_s", unit="s", lower=1e-3, upper=10.0, initial=0.1, log=True
+                ),
+            ),
+            apply=lambda s, v: _modify_static(
+                s, dwell=DwellStaticFriction(rise_n=v[0], time_constant_s=v[1])
+            ),
+            signature="breakaway force growing with the rest time before a move: a later "
+            "start after long dwells",
+        )
+
+    def memory(sys: System) -> Candidate | str:
+        return Candidate(
+            name="frictional_memory",
+            params=(
+                Param(name="memory_lag_s", unit="s", lower=1e-4, upper=0.1, initial=5e-3, log=True),
+            ),
+            apply=lambda s, v: _modify_static(s, memory_lag_s=v[0]),
+            signature="sliding friction lagging the velocity: different friction on "
+            "acceleration and braking at the same speed",
+        )
+
+    def lead(sys: System) -> Candidate | str:
+        lead_m = _lead_m(sys)
+        side = _static_side(sys)
+        kappa = 2 * math.pi / lead_m
+        return Candidate(
+            name="lead_periodic_friction",
+            params=(
+                Param(name="cos_amplitude", unit="-", lower=-0.4, upper=0.4, initial=0.05),
+                Param(name="sin_amplitude", unit="-", lower=-0.4, upper=0.4, initial=0.05),
+            ),
+            apply=lambda s, v: _add_position_term(
+                s,
+                PositionFriction(side=side, terms=(_harmonic(kappa, v[0], v[1]),)),  # type: ignore[arg-type]
+            ),
+            signature=f"friction periodic in position with the screw lead ({lead_m * 1e3:g} "
+            "mm): a residual peak at the lead's spatial period",
+        )
+
+    def position_random(sys: System) -> Candidate | str:
+        side = _static_side(sys)
+        wavelengths = (40e-3, 20e-3, 10e-3)
+        params: list[Param] = []
+        for lam in wavelengths:
+            for part in ("cos", "sin"):
+                params.append(
+                    Param(
+                        name=f"{part}_{lam * 1e3:g}mm",
+                        unit="-",
+                        lower=-0.15,
+                        upper=0.15,
+                        initial=0.02,
+                    )
+                )
+
+        def apply(s: System, v: Sequence[float]) -> System:
+            terms = tuple(
+                _harmonic(2 * math.pi / lam, v[2 * i], v[2 * i + 1])
+                for i, lam in enumerate(wavelengths)
+            )
+            return _add_position_term(s, PositionFriction(side=side, terms=terms))  # type: ignore[arg-type]
+
+        return Candidate(
+            name="position_random_friction",
+            params=tuple(params),
+            apply=apply,
+            signature="friction varying smoothly along the travel: final errors and slew "
+            "speed depending on where the move happens",
+        )
+
+    def backlash(sys: System) -> Candidate | str:
+        if not isinstance(sys.plant, Plant):
+            return "a force drive has no gearhead"
+        return Candidate(
+            name="backlash",
+            params=(
+                Param(name="width_m", unit="m", lower=1e-7, upper=1e-4, initial=5e-6, log=True),
+            ),
+            apply=lambda s, v: _fx(s, backlash=Backlash(width_m=v[0])),
+            signature="a dead band on reversal: lost motion after a change of direction and "
+            "limit cycles around the target",
+        )
+
+    def compliance(sys: System) -> Candidate | str:
+        if isinstance(sys.plant, ForceDrivePlant) and sys.plant.drive_mass_kg <= 0:
+            return "the force-drive plant has no drive-side mass (set plant.drive_mass_kg)"
+        return Candidate(
+            name="drive_compliance",
+            params=(
+                Param(
+                    name="stiffness_n_per_m",
+                    unit="N/m",
+                    lower=1e5,
+                    upper=1e9,
+                    initial=5e7,
+                    log=True,
+                ),
+                Param(
+                    name="damping_n_s_per_m",
+                    unit="N·s/m",
+                    lower=1.0,
+                    upper=1e5,
+                    initial=1e3,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s, compliance=DriveCompliance(stiffness_n_per_m=v[0], damping_n_s_per_m=v[1])
+            ),
+            signature="a drive-train resonance: ringing at a frequency set by the stiffness "
+            "and the two masses",
+        )
+
+    def inductance(sys: System) -> Candidate | str:
+        p = sys.plant
+        if not isinstance(p, Plant):
+            return "a force drive has no motor electrics"
+        if not p.motor.quasi_static_current:
+            return "the nominal model already includes the motor inductance"
+        return Candidate(
+            name="motor_inductance",
+            params=(),
+            apply=lambda s, v: replace(
+                s,
+                plant=replace(p, motor=replace(p.motor, quasi_static_current=False)),
+            ),
+            signature="a lag of the motor current behind the voltage (electrical pole)",
+        )
+
+    def amplifier(sys: System) -> Candidate | str:
+        return Candidate(
+            name="amplifier_dynamics",
+            params=(
+                Param(
+                    name="bandwidth_hz", unit="Hz", lower=5.0, upper=5e3, initial=300.0, log=True
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s, amplifier=AmplifierDynamics(bandwidth_hz=v[0], slew_v_per_s=1e9)
+            ),
+            signature="a lag of the drive behind the command: slower starts and larger overshoot",
+        )
+
+    def saturation(sys: System) -> Candidate | str:
+        ctl = sys.controller
+        if isinstance(ctl, FpgaPid):
+            lim = sys.output_stage.amplifier_limit_v
+            return Candidate(
+                name="voltage_saturation",
+                params=(
+                    Param(
+                        name="amplifier_limit_v",
+                        unit="V",
+                        lower=0.3 * lim,
+                        upper=2 * lim,
+                        initial=lim,
+                    ),
+                ),
+                apply=lambda s, v: replace(
+                    s, output_stage=replace(s.output_stage, amplifier_limit_v=v[0])
+                ),
+                signature="the slew speed at the voltage limit: the constant-slope ramp of "
+                "large steps",
+            )
+        lim = ctl.saturation_v
+        return Candidate(
+            name="voltage_saturation",
+            params=(
+                Param(name="saturation_v", unit="V", lower=0.3 * lim, upper=2 * lim, initial=lim),
+            ),
+            apply=lambda s, v: replace(s, controller=replace(ctl, saturation_v=v[0])),
+            signature="the command limit: the slope of the response while saturated",
+        )
+
+    def cyclic(sys: System) -> Candidate | str:
+        period = 20e-6 if isinstance(sys.plant, Plant) else 2.5e-3 / 50_000 * 4
+        return Candidate(
+            name="encoder_cyclic_error",
+            params=(
+                Param(
+                    name="cyclic_amplitude_m",
+                    unit="m",
+                    lower=1e-9,
+                    upper=1e-6,
+                    initial=5e-8,
+                    log=True,
+                ),
+                Param(
+                    name="cyclic_phase_rad", unit="rad", lower=-math.pi, upper=math.pi, initial=0.0
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s,
+                encoder_errors=EncoderErrors(
+                    cyclic_amplitude_m=v[0], cyclic_period_m=period, cyclic_phase_rad=v[1]
+                ),
+            ),
+            signature=f"a reading error periodic with the scale's signal period "
+            f"({period * 1e6:g} µm): final errors that repeat with position",
+        )
+
+    def delay(name: str, field: str, what: str) -> Callable[[System], Candidate]:
+        def make(sys: System) -> Candidate:
+            return Candidate(
+                name=name,
+                params=(),
+                apply=lambda s, v: _fx(s, **{field: int(v[0])}),
+                signature=what,
+                discrete=(1, 2, 3),
+            )
+
+        return make
+
+    def offset(sys: System) -> Candidate | str:
+        p = sys.plant
+        fc, _ = _table_levels(sys)
+        if isinstance(p, Plant):
+            return Candidate(
+                name="offset_force",
+                params=(
+                    Param(name="external_force_n", unit="N", lower=-fc, upper=fc, initial=0.0),
+                ),
+                apply=lambda s, v: replace(
+                    s, plant=replace(p, table=replace(p.table, external_force_n=v[0]))
+                ),
+                signature="a constant force along the axis (cable, gravity): + and − moves "
+                "differ by a constant force",
+            )
+        return Candidate(
+            name="offset_force",
+            params=(Param(name="external_force_n", unit="N", lower=-fc, upper=fc, initial=0.0),),
+            apply=lambda s, v: replace(s, plant=replace(p, external_force_n=v[0])),
+            signature="a constant force along the axis: + and − moves differ by a constant force",
+        )
+
+    return {
+        "coulomb_viscous": coulomb_viscous,
+        "stribeck": stribeck,
+        "dahl": dahl,
+        "lugre": lugre,
+        "gms": gms,
+        "asymmetric_friction": asymmetric,
+        "dwell_static_friction": dwell,
+        "frictional_memory": memory,
+        "lead_periodic_friction": lead,
+        "position_random_friction": position_random,
+        "backlash": backlash,
+        "drive_compliance": compliance,
+        "motor_inductance": inductance,
+        "amplifier_dynamics": amplifier,
+        "voltage_saturation": saturation,
+        "encoder_cyclic_error": cyclic,
+        "sensor_delay": delay(
+            "sensor_delay",
+            "sensor_delay_samples",
+            "the controller acting on an older reading: more overshoot, lower damping",
+        ),
+        "computation_delay": delay(
+            "computation_delay",
+            "computation_delay_samples",
+            "the command reaching the drive later: a delayed start and more overshoot",
+        ),
+        "offset_force": offset,
+    }
+
+
+def _motor_static_n(sys: System) -> float:
+    p = sys.plant
+    assert isinstance(p, Plant)
+    r = p.transmission_m_per_rad
+    eta = p.gearhead.efficiency * p.screw.efficiency
+    return eta * p.motor_friction.static_torque_nm / r
+
+
+def _dahl(s: System, v: Sequence[float]) -> System:
+    p = s.plant
+    if isinstance(p, Plant):
+        return _fx(
+            replace(
+                s,
+                plant=replace(
+                    p,
+                    dahl=replace(p.dahl, coulomb_force_n=v[0], stiffness_n_per_m=v[1]),
+                ),
+            ),
+            table_friction=None,
+        )
+    raise ValueError("Dahl as the table friction of a force drive is not supported")
+
+
+def gms3(coulomb_force_n: float, static_force_n: float, stiffness_n_per_m: float, vs: float) -> Gms:
+    """A 3-element GMS with fixed shape (weights 0.5/0.3/0.2, stiffness ratios 1 : 0.3 : 0.1
+    of the total ``stiffness_n_per_m``)."""
+    ratios = (1.0, 0.3, 0.1)
+    total = sum(ratios)
+    return Gms(
+        stiffness_n_per_m=tuple(stiffness_n_per_m * r / total for r in ratios),
+        weights=(0.5, 0.3, 0.2),
+        coulomb_force_n=coulomb_force_n,
+        static_force_n=static_force_n,
+        stribeck_velocity_m_per_s=vs,
+    )
+
+
+_FACTORIES = _build()
+
+#: Effects that are not fitted as candidates, with the reason (reported).
+NOT_CANDIDATES: dict[str, str] = {
+    "stochastic_friction": "random from trial to trial: it sets the noise floor (estimated "
+    "from the spread of repeated experiments) rather than a deterministic gap",
+    "encoder_noise": "random: part of the noise floor",
+    "sample_jitter": "random: part of the noise floor",
+    "interferometer": "a measurement channel, not an effect on the motion",
+    "dac_quantisation": "always modelled (the FPGA loop is bit-exact)",
+    "force_disturbance": "a known input: applied from the trace's disturbance_n column",
+    "command_disturbance": "a known input: applied from the trace's disturbance_v column",
+}
+
+#: Every candidate name.
+CANDIDATES: tuple[str, ...] = tuple(_FACTORIES)
+
+assert set(CANDIDATES) | set(NOT_CANDIDATES) == set(EFFECT_NAMES), "registry out of date"
+
+
+def applicable_candidates(
+    system: System, names: Sequence[str] | None = None
+) -> tuple[list[Candidate], dict[str, str]]:
+    """The candidates that apply to ``system`` (default: all), and the skipped ones with the
+    reason. Unknown names raise ``ValueError`` listing the valid ones."""
+    chosen = list(CANDIDATES) if names is None else list(names)
+    out: list[Candidate] = []
+    skipped: dict[str, str] = {}
+    for n in chosen:
+        if n in NOT_CANDIDATES:
+            skipped[n] = NOT_CANDIDATES[n]
+            continue
+        if n not in _FACTORIES:
+            raise ValueError(f"unknown effect {n!r}; valid: {', '.join(EFFECT_NAMES)}")
+        c = _FACTORIES[n](system)
+        if isinstance(c, str):
+            skipped[n] = c
+        else:
+            out.append(c)
+    return out, skipped

@@ -1,0 +1,537 @@
+"""The diagnosis engine: calibrate the nominal model, fit every candidate effect on the
+training experiments, judge it on the validation experiments, select effects forward, and
+assemble the report.
+
+The gap
+    For each sample, measured feedback reading minus the simulated mean reading
+    ``x_sim − q/2`` (``q`` the encoder count: a floor quantiser reads on average half a count
+    low). Using the mean reading keeps the fit objective smooth in the parameters; its floor
+    for a perfect model is the quantisation noise ``q/√12`` plus sensor noise plus the
+    trial-to-trial friction scatter. Experiments are weighted equally (each contributes its
+    mean square).
+
+Significance (documented in docs/diagnosis.md)
+    A candidate is *significant* when all hold: (1) its validation mean-square gap is lower
+    than the nominal model's by more than the noise floor allows: the bootstrap over
+    validation experiments (resampled with replacement) gives a reduction ≤ 0 in fewer than
+    5 % of resamples; (2) the RMS shrink exceeds a complexity penalty of
+    ``0.03 + 0.02·(number of parameters)``; (3) the reduction of the mean square exceeds
+    ``1.5 ×`` the floor's mean square divided by the number of validation experiments (what
+    refitting to noise can buy).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+from scipy.stats import qmc
+
+from ..config import System
+from ..experiment import Experiment
+from ..simulate import simulate
+from .candidates import Candidate, Param, applicable_candidates
+
+__all__ = [
+    "CandidateResult",
+    "DiagnosisSettings",
+    "Fit",
+    "FitProblem",
+    "diagnose_experiments",
+    "noise_floor_m",
+]
+
+FloatArray = npt.NDArray[np.float64]
+#: Turns the model into the system of one experiment (its controller gains).
+Adapt = Callable[[System, Experiment], System]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DiagnosisSettings:
+    """Knobs of the engine (defaults suit ~10 experiments in about a minute on 2 cores)."""
+
+    n_starts_nominal: int = 3
+    n_starts_candidate: int = 2
+    max_nfev_per_param: int = 12
+    diff_step: float = 0.03
+    bootstrap: int = 400
+    p_value: float = 0.05
+    penalty_base: float = 0.03
+    penalty_per_param: float = 0.02
+    floor_factor: float = 1.5
+    forward_rounds: int = 3
+    forward_top: int = 4
+    seed: int = 0
+    workers: int = 0  #: 0: one per CPU
+
+
+def _progress(msg: str, enabled: bool) -> None:
+    if enabled:
+        print(msg, file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Fit:
+    """A fitted model: its parameter values (dotted paths of free nominal parameters and
+    ``effect.param`` names), standard errors, training RMS gap and the system."""
+
+    values: dict[str, float]
+    std_errors: dict[str, float]
+    train_rms_m: float
+    n_evaluations: int
+    system: System = field(repr=False)
+
+
+class FitProblem:
+    """Least-squares fit of some parameters of a system to experiments, simulation in the
+    loop. ``build(values)`` turns physical parameter values into a system."""
+
+    def __init__(
+        self,
+        params: Sequence[tuple[str, Param]],
+        build: Callable[[Sequence[float]], System],
+        experiments: Sequence[Experiment],
+        executor: Executor,
+        adapt: Adapt,
+    ) -> None:
+        self.params = list(params)
+        self.build = build
+        self.experiments = list(experiments)
+        self.executor = executor
+        self.adapt = adapt
+        self.n_evaluations = 0
+        self.scale_m = 1e-7
+
+    def residuals(self, system: System, experiments: Sequence[Experiment]) -> list[FloatArray]:
+        """Per-experiment gap (measured − simulated mean reading)."""
+        futures = [
+            self.executor.submit(simulated_mean_reading, self.adapt(system, e), e)
+            for e in experiments
+        ]
+        out = []
+        for e, f in zip(experiments, futures, strict=True):
+            out.append(np.asarray(e.position_m, dtype=np.float64) - f.result())
+        return out
+
+    def _vector(self, u: FloatArray) -> FloatArray:
+        values = [p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, u, strict=True)]
+        self.n_evaluations += 1
+        try:
+            res = self.residuals(self.build(values), self.experiments)
+        except (RuntimeError, ValueError):
+            # A failed simulation (or an invalid combination) is a very bad fit, not a crash.
+            return np.full(sum(len(e.time_s) for e in self.experiments), 1e-2)
+        # In counts (well-scaled for the optimiser's tolerances), each experiment weighted by
+        # 1/√n so that it contributes its mean square.
+        return np.concatenate([r / (self.scale_m * math.sqrt(len(r))) for r in res])
+
+    def fit(self, n_starts: int, settings: DiagnosisSettings, seed: int) -> Fit:
+        """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates."""
+        k = len(self.params)
+        self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
+        if k == 0:
+            system = self.build([])
+            res = self.residuals(system, self.experiments)
+            return Fit(
+                values={},
+                std_errors={},
+                train_rms_m=_rms(res),
+                n_evaluations=1,
+                system=system,
+            )
+        starts = [np.array([1.0 + p.to_unit(p.initial) for _, p in self.params])]
+        if n_starts > 1:
+            lhs = qmc.LatinHypercube(d=k, seed=seed).random(n_starts - 1)
+            starts += [1.0 + row for row in lhs]
+        best: Any = None
+        for u0 in starts:
+            sol = least_squares(
+                self._vector,
+                np.clip(u0, 1.0, 2.0),
+                bounds=(1.0, 2.0),
+                method="trf",
+                diff_step=settings.diff_step,
+                max_nfev=settings.max_nfev_per_param * (k + 1),
+                x_scale=1.0,
+                xtol=1e-4,
+                ftol=1e-4,
+                gtol=1e-6,
+            )
+            if best is None or sol.cost < best.cost:
+                best = sol
+        values = [
+            p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, best.x, strict=True)
+        ]
+        std = _std_errors(best, self.params)
+        system = self.build(values)
+        return Fit(
+            values={n: v for (n, _), v in zip(self.params, values, strict=True)},
+            std_errors={n: s for (n, _), s in zip(self.params, std, strict=True)},
+            train_rms_m=self.scale_m * math.sqrt(2.0 * best.cost / len(self.experiments)),
+            n_evaluations=self.n_evaluations,
+            system=system,
+        )
+
+
+def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
+    """Standard errors from the Jacobian at the optimum, in physical units (residual samples
+    are treated as independent, so they are optimistic for correlated residuals)."""
+    jac = np.asarray(sol.jac, dtype=np.float64)
+    n, k = jac.shape
+    dof = max(n - k, 1)
+    s2 = 2.0 * float(sol.cost) / dof
+    try:
+        cov = np.linalg.pinv(jac.T @ jac) * s2
+    except np.linalg.LinAlgError:
+        return [math.inf] * k
+    out = []
+    for i, (_, p) in enumerate(params):
+        u = float(sol.x[i]) - 1.0
+        eps = 1e-6
+        dv = (p.from_unit(min(u + eps, 1.0)) - p.from_unit(max(u - eps, 0.0))) / (
+            min(u + eps, 1.0) - max(u - eps, 0.0)
+        )
+        var = float(cov[i, i])
+        out.append(abs(dv) * math.sqrt(var) if var > 0 and math.isfinite(var) else math.inf)
+    return out
+
+
+def _rms(res: Sequence[FloatArray]) -> float:
+    return math.sqrt(float(np.mean([np.mean(r**2) for r in res])))
+
+
+def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
+    """The simulated true position minus half a count, on the experiment's samples."""
+    t = system.sample_period_s
+    if abs(exp.sample_period_s - t) > 1e-6 * t:
+        raise ValueError(
+            f"experiment {exp.name!r} ({exp.source}): sample period {exp.sample_period_s:g} s "
+            f"differs from the controller's {t:g} s"
+        )
+    q = system.encoder.count_m
+    tr = simulate(
+        system,
+        exp.reference_m,
+        force_disturbance_n=exp.disturbance_n,
+        command_disturbance_v=exp.disturbance_v,
+        initial_position_m=float(exp.position_m[0]) + 0.5 * q,
+    )
+    out: FloatArray = tr.position_m - 0.5 * q
+    return out
+
+
+def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
+    """The gap a perfect model would leave, m: quantisation ``q/√12`` plus the white sensor
+    noise estimated from the second differences of the measured readings where the
+    reference is at rest, plus the spread of repeated experiments (same reference), if any."""
+    noise_var = []
+    for e in experiments:
+        rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
+        d2 = np.diff(e.position_m, 2)
+        m = rest[1:-1]
+        if np.count_nonzero(m) > 20:
+            mad = float(np.median(np.abs(d2[m] - np.median(d2[m]))))
+            noise_var.append((1.4826 * mad) ** 2 / 6.0)
+    var = count_m**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
+    # Repeats: experiments with the same reference (up to a constant offset).
+    groups: dict[tuple[int, int], list[Experiment]] = {}
+    for e in experiments:
+        key = (len(e.reference_m), round(float(np.sum(np.abs(np.diff(e.reference_m)))) / count_m))
+        groups.setdefault(key, []).append(e)
+    spreads = []
+    for g in groups.values():
+        for a, b in itertools.pairwise(g):
+            da = a.position_m - a.position_m[0]
+            db = b.position_m - b.position_m[0]
+            if np.allclose(np.diff(a.reference_m), np.diff(b.reference_m), atol=count_m / 10):
+                spreads.append(float(np.mean((da - db) ** 2)) / 2.0)
+    if spreads:
+        var = max(var, float(np.median(spreads)))
+    return math.sqrt(var)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CandidateResult:
+    """One candidate judged on the validation experiments."""
+
+    effect: str
+    fit: Fit
+    #: Mean-square gap per validation experiment (all folds, fold order), m².
+    validation_ms: FloatArray
+    validation_rms_m: float
+    shrink: float
+    p_value: float
+    significant: bool
+    reasons: list[str]
+    setting: int | None = None
+
+    def to_dict(self, params: Sequence[tuple[str, Param]]) -> dict[str, Any]:
+        units = {n: p.unit for n, p in params}
+        return {
+            "effect": self.effect,
+            "validation_rms_m": self.validation_rms_m,
+            "shrink": self.shrink,
+            "significant": self.significant,
+            "p_value": self.p_value,
+            "parameters": {
+                n: {"value": v, "std_error": self.fit.std_errors.get(n), "unit": units.get(n)}
+                for n, v in self.fit.values.items()
+                if n.startswith(self.effect + ".")
+            }
+            | (
+                {f"{self.effect}.samples": {"value": self.setting, "unit": "samples"}}
+                if self.setting is not None
+                else {}
+            ),
+            "train_rms_m": self.fit.train_rms_m,
+            "why": self.reasons,
+        }
+
+
+def _bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:
+    """Fraction of bootstrap resamples (over experiments) with mean reduction ≤ 0."""
+    if len(d) == 0:
+        return 1.0
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(d), size=(n_boot, len(d)))
+    means = d[idx].mean(axis=1)
+    return float(np.mean(means <= 0.0))
+
+
+FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
+
+#: A train/validate split of experiments.
+Split = tuple[Sequence[Experiment], Sequence[Experiment]]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Ctx:
+    free: Sequence[tuple[str, Param]]
+    set_free: Callable[[System, Mapping[str, float]], System]
+    folds: Sequence[Split]
+    floor: float
+    st: DiagnosisSettings
+    pool: Executor
+    adapt: Adapt
+
+    @property
+    def n_validation(self) -> int:
+        return sum(len(v) for _, v in self.folds)
+
+    def builder(
+        self, base: System, apply_extra: Callable[[System, Sequence[float]], System]
+    ) -> Callable[[Sequence[float]], System]:
+        nf = len(self.free)
+
+        def build(values: Sequence[float]) -> System:
+            s = self.set_free(
+                base, {n: v for (n, _), v in zip(self.free, values[:nf], strict=True)}
+            )
+            return apply_extra(s, values[nf:])
+
+        return build
+
+    def fit_and_validate(
+        self,
+        base: System,
+        params: Sequence[tuple[str, Param]],
+        apply_extra: Callable[[System, Sequence[float]], System],
+        n_starts: int,
+        seed: int,
+    ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]]]:
+        """Fit on each fold's training experiments; mean-square gap on its validation ones
+        (concatenated over folds) and the validation residuals per fold."""
+        fits, ms, residuals = [], [], []
+        for train, validate in self.folds:
+            prob = FitProblem(
+                list(self.free) + list(params),
+                self.builder(base, apply_extra),
+                train,
+                self.pool,
+                self.adapt,
+            )
+            f = prob.fit(n_starts, self.st, seed)
+            res = prob.residuals(f.system, validate)
+            fits.append(f)
+            residuals.append(res)
+            ms += [float(np.mean(r**2)) for r in res]
+        return fits, np.array(ms), residuals
+
+
+def diagnose_experiments(
+    nominal: System,
+    free: Sequence[tuple[str, Param]],
+    set_free: Callable[[System, Mapping[str, float]], System],
+    folds: Sequence[Split],
+    *,
+    adapt: Adapt | None = None,
+    candidates: Sequence[str] | None = None,
+    settings: DiagnosisSettings | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run the diagnosis over train/validate folds. Returns a dict with ``nominal`` (Fit of
+    the first fold), ``nominal_validation_ms``, ``floor_rms_m``, ``rounds`` (lists of
+    CandidateResult, best first), ``selected`` (names), ``final`` (Fit of the first fold),
+    ``final_validation_ms``, ``skipped`` (name → reason) and ``timing_s``."""
+    st = settings or DiagnosisSettings()
+    workers = st.workers or (os.cpu_count() or 1)
+    t_start = time.perf_counter()
+    if not folds or any(len(v) == 0 for _, v in folds):
+        raise ValueError("the diagnosis needs at least one validation experiment per fold")
+    every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
+    floor = noise_floor_m(list(every.values()), nominal.encoder.count_m)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        ctx = _Ctx(
+            free=free,
+            set_free=set_free,
+            folds=folds,
+            floor=floor,
+            st=st,
+            pool=pool,
+            adapt=adapt or (lambda s, e: s),
+        )
+        _progress(
+            f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
+            f"{len(folds)} fold(s))",
+            progress,
+        )
+        nominal_fits, base_ms, _ = ctx.fit_and_validate(
+            nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
+        )
+        selected: list[str] = []
+        rounds: list[list[CandidateResult]] = []
+        current = nominal
+        current_fit = nominal_fits[0]
+        current_ms = base_ms
+        cands, skipped = applicable_candidates(nominal, candidates)
+        pool_names = [c.name for c in cands]
+        for rnd in range(st.forward_rounds):
+            names = pool_names if rnd == 0 else pool_names[: st.forward_top]
+            cand_now, _ = applicable_candidates(current, [n for n in names if n not in selected])
+            if any(n in FRICTION_MODELS for n in selected):
+                cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
+            results: list[CandidateResult] = []
+            for i, cand in enumerate(cand_now):
+                t0 = time.perf_counter()
+                try:
+                    r = _judge(cand, current, current_ms, ctx, i)
+                except (ValueError, RuntimeError) as exc:
+                    # An invalid combination with the effects already selected, or a
+                    # simulation failing at the start values: reported, not fatal.
+                    skipped[cand.name] = f"round {rnd + 1}: could not be fitted: {exc}"
+                    _progress(f"  round {rnd + 1} {cand.name}: not fitted ({exc})", progress)
+                    continue
+                results.append(r)
+                _progress(
+                    f"  round {rnd + 1} [{i + 1}/{len(cand_now)}] {cand.name:26s} "
+                    f"validation {r.validation_rms_m * 1e9:9.1f} nm  shrink {r.shrink:+.1%}"
+                    f"{'  significant' if r.significant else ''}"
+                    f"  ({time.perf_counter() - t0:.1f} s)",
+                    progress,
+                )
+            results.sort(key=lambda r: r.validation_rms_m)
+            rounds.append(results)
+            if rnd == 0:
+                pool_names = [r.effect for r in results]
+            best = next((r for r in results if r.significant), None)
+            if best is None:
+                break
+            selected.append(best.effect)
+            current = _with_effect(current, best, cand_now)
+            current_fit = best.fit
+            current_ms = best.validation_ms
+    return {
+        "nominal": nominal_fits[0],
+        "nominal_validation_ms": base_ms,
+        "floor_rms_m": floor,
+        "rounds": rounds,
+        "selected": selected,
+        "final": current_fit,
+        "final_validation_ms": current_ms,
+        "skipped": skipped,
+        "timing_s": time.perf_counter() - t_start,
+    }
+
+
+def _with_effect(current: System, best: CandidateResult, cands: Sequence[Candidate]) -> System:
+    """The current model with the winner's effect at its fitted values (nominal free
+    parameters back at the current model's values: they are refitted with each candidate)."""
+    cand = next(c for c in cands if c.name == best.effect)
+    if cand.discrete:
+        assert best.setting is not None
+        return cand.apply(current, [best.setting])
+    return cand.apply(current, [best.fit.values[f"{cand.name}.{p.name}"] for p in cand.params])
+
+
+def _judge(
+    cand: Candidate, base: System, base_ms: FloatArray, ctx: _Ctx, index: int
+) -> CandidateResult:
+    st = ctx.st
+    extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
+    setting: int | None = None
+    if cand.discrete:
+        best: tuple[list[Fit], FloatArray, int] | None = None
+        for k in cand.discrete:
+
+            def fixed(s: System, v: Sequence[float], k: int = k) -> System:
+                return cand.apply(s, [k])
+
+            fits, ms, _ = ctx.fit_and_validate(base, (), fixed, 1, st.seed + index)
+            train = float(np.mean([f.train_rms_m for f in fits]))
+            if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
+                best = (fits, ms, k)
+        assert best is not None
+        fits, ms, setting = best
+        k_params = 1
+    else:
+        fits, ms, _ = ctx.fit_and_validate(
+            base, extra, cand.apply, st.n_starts_candidate, st.seed + index
+        )
+        k_params = len(cand.params)
+    d = base_ms - ms
+    p = _bootstrap_p(d, st.bootstrap, st.seed + 1000 + index)
+    rms0 = math.sqrt(float(np.mean(base_ms)))
+    rms1 = math.sqrt(float(np.mean(ms)))
+    shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
+    penalty = st.penalty_base + st.penalty_per_param * k_params
+    floor_gain = st.floor_factor * ctx.floor**2 / ctx.n_validation
+    gain = float(np.mean(d))
+    reasons = []
+    ok = True
+    if p >= st.p_value:
+        ok = False
+        reasons.append(f"bootstrap over validation experiments: p = {p:.2f} ≥ {st.p_value}")
+    if shrink <= penalty:
+        ok = False
+        reasons.append(f"shrink {shrink:.1%} ≤ complexity penalty {penalty:.0%}")
+    if gain <= floor_gain:
+        ok = False
+        reasons.append(
+            f"mean-square gain {gain:.3g} m² ≤ noise-and-refit floor {floor_gain:.3g} m²"
+        )
+    if ok:
+        reasons.append(
+            f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}), "
+            f"bootstrap p = {p:.3f}"
+        )
+    return CandidateResult(
+        effect=cand.name,
+        fit=fits[0],
+        validation_ms=ms,
+        validation_rms_m=rms1,
+        shrink=shrink,
+        p_value=p,
+        significant=ok,
+        reasons=reasons,
+        setting=setting,
+    )

@@ -1,0 +1,709 @@
+"""Write the diagnosis report: ``report.json``, ``report.md`` and figures.
+
+Everything takes plain dicts and arrays so that the fitting engine can call it with what it
+has. The report dict has the keys
+
+``gap_before``, ``gap_after``
+    :meth:`nanostage.diagnosis.gap.GapAnalysis.to_dict` (or a bare
+    :meth:`~nanostage.diagnosis.gap.GapStats.to_dict`) before and after the fit;
+``candidates``
+    the ranked candidates, a list of dicts (any keys; rendered as a table in list order);
+``selected``
+    the selected effects: a list of names, a list of dicts or a dict;
+any other key
+    kept in ``report.json``; scalars and short lists are also listed in ``report.md``.
+
+NaN and infinities become ``null`` in JSON; numpy scalars and arrays become numbers and
+lists. matplotlib (the optional ``plot`` extra) is imported only by the figure functions,
+which draw with the Agg backend and never show windows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from .segments import PHASES
+
+__all__ = [
+    "FIGURE_NAMES",
+    "JSON_NAME",
+    "MARKDOWN_NAME",
+    "PHASE_COLOURS",
+    "ReportFiles",
+    "markdown_report",
+    "plot_gap_map",
+    "plot_residual_spectrum",
+    "to_jsonable",
+    "write_json",
+    "write_report",
+]
+
+#: File names written by :func:`write_report`.
+JSON_NAME: Final = "report.json"
+MARKDOWN_NAME: Final = "report.md"
+FIGURE_NAMES: Final[Mapping[str, str]] = {
+    "gap_map": "gap_map.png",
+    "residual_spectrum": "residual_spectrum.png",
+}
+#: Band colour of each phase in the gap map.
+PHASE_COLOURS: Final[Mapping[str, str]] = {
+    "acceleration": "#8dd3c7",
+    "slew": "#ffffb3",
+    "braking": "#bebada",
+    "overshoot": "#fb8072",
+    "settling": "#80b1d3",
+    "hold": "#d9d9d9",
+}
+
+_UM: Final = 1e6
+
+
+# --------------------------------------------------------------------------------------------
+# JSON
+# --------------------------------------------------------------------------------------------
+
+
+def to_jsonable(obj: Any) -> Any:
+    """A JSON-serialisable copy: numpy → Python numbers/lists, NaN/inf → None, dataclasses
+    via ``to_dict()`` (or :func:`dataclasses.asdict`), paths → str, tuples/sets → lists,
+    mapping keys → str."""
+    if obj is None or isinstance(obj, bool | str):
+        return obj
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, np.ndarray):
+        return [to_jsonable(v) for v in obj.tolist()] if obj.ndim else to_jsonable(obj.item())
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        to_dict = getattr(obj, "to_dict", None)
+        if callable(to_dict):
+            return to_jsonable(to_dict())
+        return to_jsonable({f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)})
+    if isinstance(obj, set | frozenset):
+        return [to_jsonable(v) for v in sorted(obj, key=str)]
+    if isinstance(obj, list | tuple):
+        return [to_jsonable(v) for v in obj]
+    raise TypeError(f"cannot write {type(obj).__name__} to JSON: {obj!r:.80}")
+
+
+def write_json(data: Any, path: str | Path) -> Path:
+    """Write ``to_jsonable(data)`` as indented JSON (strict: no NaN tokens)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(to_jsonable(data), indent=2, allow_nan=False, ensure_ascii=False)
+    p.write_text(text + "\n", encoding="utf-8")
+    return p
+
+
+# --------------------------------------------------------------------------------------------
+# Markdown
+# --------------------------------------------------------------------------------------------
+
+
+def _num(v: Any) -> float | None:
+    if isinstance(v, bool) or v is None:
+        return None
+    if isinstance(v, int | float | np.integer | np.floating):
+        f = float(v)
+        return f if math.isfinite(f) else None
+    return None
+
+
+def _fmt(key: str, v: Any) -> str:
+    """A cell: lengths in µm, times in ms, speeds in mm/s, shares in %, by key suffix."""
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    f = _num(v)
+    if f is None:
+        if isinstance(v, float | np.floating):
+            return "—"
+        if isinstance(v, Mapping | list | tuple):
+            return _md_escape(json.dumps(to_jsonable(v), ensure_ascii=False))
+        return _md_escape(str(v))
+    if key.endswith("_m_per_s"):
+        return f"{f * 1e3:.4g}"
+    if key.endswith("_m2"):
+        return f"{f * 1e12:.4g}"
+    if key.endswith("_m"):
+        return f"{f * _UM:.4g}"
+    if key.endswith("_s"):
+        return f"{f * 1e3:.4g}"
+    if key in ("share", "lead_share") or key.endswith("_share"):
+        return f"{100.0 * f:.1f} %"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    return f"{f:.4g}"
+
+
+def _unit(key: str) -> str:
+    if key.endswith("_m_per_s"):
+        return " [mm/s]"
+    if key.endswith("_m2"):
+        return " [µm²]"
+    if key.endswith("_m"):
+        return " [µm]"
+    if key.endswith("_s"):
+        return " [ms]"
+    return ""
+
+
+def _md_escape(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def _table(head: Sequence[str], rows: Sequence[Sequence[str]], align: str = "---") -> str:
+    lines = ["| " + " | ".join(head) + " |", "| " + " | ".join([align] * len(head)) + " |"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _gap_stats(gap: Any) -> Mapping[str, Any] | None:
+    """The overall GapStats dict of a GapAnalysis dict (or a GapStats dict itself)."""
+    if not isinstance(gap, Mapping):
+        return None
+    if "overall" in gap and isinstance(gap["overall"], Mapping):
+        overall: Mapping[str, Any] = gap["overall"]
+        return overall
+    if "partitions" in gap:
+        return gap
+    return None
+
+
+def _gap_table(before: Mapping[str, Any] | None, after: Mapping[str, Any] | None) -> str:
+    out: list[str] = []
+    parts_b = (before or {}).get("partitions", {})
+    parts_a = (after or {}).get("partitions", {})
+    head = ["Segment", "n", "RMS before [µm]", "share before"]
+    if after is not None:
+        head += ["RMS after [µm]", "share after"]
+    total = ["**total**", _fmt("n", (before or after or {}).get("n_samples"))]
+    total += [_fmt("rms_m", (before or {}).get("rms_m")), "100.0 %" if before else "—"]
+    if after is not None:
+        total += [_fmt("rms_m", after.get("rms_m")), "100.0 %"]
+    for pname in list(parts_b) + [p for p in parts_a if p not in parts_b]:
+        segs_b = parts_b.get(pname, {})
+        segs_a = parts_a.get(pname, {})
+        names = list(segs_b) + [k for k in segs_a if k not in segs_b]
+        rows = [total]
+        for name in names:
+            b, a = segs_b.get(name, {}), segs_a.get(name, {})
+            row = [_md_escape(name), _fmt("n", b.get("n_samples", a.get("n_samples")))]
+            row += [_fmt("rms_m", b.get("rms_m")), _fmt("share", b.get("share"))]
+            if after is not None:
+                row += [_fmt("rms_m", a.get("rms_m")), _fmt("share", a.get("share"))]
+            rows.append(row)
+        out.append(f"#### By {pname}\n\n" + _table(head, rows))
+    return "\n".join(out)
+
+
+def _records_table(records: Sequence[Any]) -> str:
+    """A table of a list of dicts (columns: union of keys, preferred ones first)."""
+    preferred = ("rank", "effect", "name", "score", "gap_rms_m", "rms_m", "improvement")
+    keys: list[str] = [
+        k for k in preferred if any(isinstance(r, Mapping) and k in r for r in records)
+    ]
+    for r in records:
+        if isinstance(r, Mapping):
+            keys += [str(k) for k in r if str(k) not in keys]
+    if not keys:
+        return "\n".join(f"{i + 1}. {_md_escape(str(r))}" for i, r in enumerate(records)) + "\n"
+    head = ["#"] + [f"{k}{_unit(k)}" for k in keys]
+    rows = []
+    for i, r in enumerate(records):
+        m = r if isinstance(r, Mapping) else {}
+        rows.append([str(i + 1)] + [_fmt(k, m.get(k)) for k in keys])
+    return _table(head, rows)
+
+
+def _features_table(before: Any, after: Any) -> str:
+    fb = before.get("features") if isinstance(before, Mapping) else None
+    fa = after.get("features") if isinstance(after, Mapping) else None
+    if not fb:
+        return ""
+    after_by_key = {
+        (r["experiment"], r["move"], r["feature"]): r for r in (fa or []) if isinstance(r, Mapping)
+    }
+    head = ["Experiment", "Move", "Step [µm]", "Feature", "Measured", "Simulated before"]
+    if fa:
+        head.append("Simulated after")
+    rows = []
+    for r in fb:
+        f = str(r["feature"])
+        unit = _unit(f)
+        row = [
+            _md_escape(str(r["experiment"])),
+            str(r["move"]),
+            _fmt("step_m", r.get("step_m")),
+            f"{f}{unit}",
+            _fmt(f, r.get("measured")),
+            _fmt(f, r.get("simulated")),
+        ]
+        if fa:
+            ra = after_by_key.get((r["experiment"], r["move"], f), {})
+            row.append(_fmt(f, ra.get("simulated")))
+        rows.append(row)
+    return _table(head, rows)
+
+
+def _iso_table(before: Any, after: Any) -> str:
+    ib = before.get("iso230_2") if isinstance(before, Mapping) else None
+    ia = after.get("iso230_2") if isinstance(after, Mapping) else None
+    if not ib:
+        return ""
+    symbols = ib.get("symbols", {})
+    head = ["Symbol", "Measured [µm]", "Simulated before [µm]"]
+    if ia:
+        head.append("Simulated after [µm]")
+    rows = []
+    for key, v in ib.get("axis", {}).items():
+        row = [
+            str(symbols.get(key, key)),
+            _fmt(key, v.get("measured")),
+            _fmt(key, v.get("simulated")),
+        ]
+        if ia:
+            row.append(_fmt(key, ia.get("axis", {}).get(key, {}).get("simulated")))
+        rows.append(row)
+    return _table(head, rows)
+
+
+def _limit_cycles(gap: Any) -> str:
+    moves = gap.get("moves") if isinstance(gap, Mapping) else None
+    if not isinstance(moves, Mapping):
+        return ""
+    rows = []
+    for exp, ms in moves.items():
+        for m in ms:
+            lc = m.get("limit_cycle")
+            if lc:
+                rows.append(
+                    [
+                        _md_escape(str(exp)),
+                        str(m.get("index")),
+                        _fmt("amplitude_m", lc.get("amplitude_m")),
+                        _fmt("period_s", lc.get("period_s")),
+                    ]
+                )
+    if not rows:
+        return "No limit cycle detected in hold (measured).\n"
+    return _table(["Experiment", "Move", "Amplitude [µm]", "Period [ms]"], rows)
+
+
+def markdown_report(
+    report: Mapping[str, Any],
+    *,
+    title: str = "Sim-to-real gap diagnosis",
+    figures: Mapping[str, str] | None = None,
+) -> str:
+    """The Markdown report: gap per segment before/after, candidates ranked, selected
+    effects, response features and ISO 230-2 measured vs simulated, limit cycles, the lead
+    share, other scalar entries, and links to the figures.
+
+    Parameters
+    ----------
+    report : mapping
+        See the module docstring.
+    title : str
+        Top heading.
+    figures : mapping of str to str, optional
+        Figure label → relative path, linked at the end.
+    """
+    before, after = report.get("gap_before"), report.get("gap_after")
+    sb, sa = _gap_stats(before), _gap_stats(after)
+    out = [f"# {_md_escape(title)}\n"]
+    if sb is not None or sa is not None:
+        out.append("## Gap per segment\n")
+        out.append(
+            "RMS residual (measured − simulated) per segment and its share of the total sum "
+            "of squares (the shares of each partition add up to 100 %).\n"
+        )
+        out.append(_gap_table(sb, sa))
+    lead_rows = []
+    for label, g in (("before", before), ("after", after)):
+        if isinstance(g, Mapping) and "lead_share" in g:
+            lead = _num(g.get("lead_m"))
+            period = "—" if lead is None else f"{lead * 1e3:g}"
+            lead_rows.append([label, period, _fmt("share", g.get("lead_share"))])
+    if lead_rows:
+        out.append("## Position-periodic residual\n")
+        out.append(
+            "Share of the spatial residual power within ±15 % of the screw-lead frequency "
+            "(a large share points at position-dependent friction; — if the travel is too "
+            "short).\n"
+        )
+        out.append(_table(["", "Period [mm]", "Power share"], lead_rows))
+    if "candidates" in report:
+        out.append("## Candidates (ranked)\n")
+        cands = report["candidates"]
+        out.append(_records_table(list(cands)) if cands else "No candidates.\n")
+    if "selected" in report:
+        out.append("## Selected\n")
+        sel = report["selected"]
+        if isinstance(sel, Mapping):
+            out.append(_records_table([sel]))
+        elif isinstance(sel, list | tuple) and sel and all(isinstance(s, Mapping) for s in sel):
+            out.append(_records_table(list(sel)))
+        elif isinstance(sel, list | tuple):
+            out.append(
+                "\n".join(f"- `{_md_escape(str(s))}`" for s in sel) + "\n" if sel else "None.\n"
+            )
+        else:
+            out.append(f"{_md_escape(str(sel))}\n")
+    feats = _features_table(before, after)
+    if feats:
+        out.append("## Response features, measured vs simulated\n")
+        out.append(feats)
+    iso = _iso_table(before, after)
+    if iso:
+        out.append("## ISO 230-2 (final hold positions)\n")
+        out.append(iso)
+    lc = _limit_cycles(before)
+    if lc:
+        out.append("## Limit cycles in hold\n")
+        out.append(lc)
+    known = {"gap_before", "gap_after", "candidates", "selected"}
+    extra = [
+        [_md_escape(str(k)), _fmt(str(k), v)]
+        for k, v in report.items()
+        if k not in known and (_num(v) is not None or isinstance(v, str | bool) or v is None)
+    ]
+    if extra:
+        out.append("## Other\n")
+        out.append(_table(["Key", "Value"], extra))
+    if figures:
+        out.append("## Figures\n")
+        out.append("\n".join(f"![{_md_escape(k)}]({v})" for k, v in figures.items()) + "\n")
+    return "\n".join(out)
+
+
+# --------------------------------------------------------------------------------------------
+# Figures
+# --------------------------------------------------------------------------------------------
+
+
+def _figure(size: tuple[float, float]) -> Any:
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError as e:  # pragma: no cover - exercised only without the extra
+        raise ImportError("figures need matplotlib: pip install 'nanostage[plot]'") from e
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _intervals(exp: Mapping[str, Any], n: int) -> list[tuple[str, int, int]]:
+    if "intervals" in exp:
+        return [(str(p), int(a), int(b)) for p, a, b in exp["intervals"]]
+    if "phase" in exp:
+        ph = np.asarray(exp["phase"])
+        labels = ph if ph.dtype.kind in "US" else np.asarray(PHASES)[ph.astype(np.int64)]
+        cuts = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+        starts = np.concatenate(([0], cuts))
+        ends = np.concatenate((cuts, [n]))
+        return [(str(labels[a]), int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+    return []
+
+
+def plot_gap_map(
+    experiments: Sequence[Mapping[str, Any]],
+    path: str | Path | None = None,
+    *,
+    segment_rms_before_m: Mapping[str, float | None] | None = None,
+    segment_rms_after_m: Mapping[str, float | None] | None = None,
+    max_experiments: int = 6,
+    title: str | None = None,
+) -> Any:
+    """The gap map: per experiment, measured vs simulated position (top) and the residual
+    with the phase bands coloured (below); on the right, the RMS residual per phase.
+
+    Parameters
+    ----------
+    experiments : sequence of mapping
+        Per experiment: ``name``, ``time_s``, ``measured_m``, ``simulated_m``, optional
+        ``reference_m``, ``simulated_after_m`` (the fitted simulation), and the phases as
+        ``intervals`` (``(phase, first, end)`` runs) or ``phase`` (per-sample names or
+        indices into :data:`~nanostage.diagnosis.segments.PHASES`).
+        :meth:`~nanostage.diagnosis.gap.ExperimentGap.figure_data` gives this.
+    path : str or Path, optional
+        Save as PNG there.
+    segment_rms_before_m, segment_rms_after_m : mapping of str to float, optional
+        Phase → RMS residual, m, for the bar chart (e.g. ``gap["overall"]["partitions"]
+        ["phase"]`` reduced to ``rms_m``).
+    max_experiments : int
+        Draw at most this many experiments (the first ones).
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    exps = list(experiments)[: max(1, max_experiments)]
+    if not exps:
+        raise ValueError("no experiments to draw")
+    has_bars = bool(segment_rms_before_m or segment_rms_after_m)
+    fig = _figure((13.0 if has_bars else 10.0, 1.0 + 3.6 * len(exps)))
+    gs = fig.add_gridspec(
+        2 * len(exps),
+        2 if has_bars else 1,
+        width_ratios=[3, 1] if has_bars else None,
+        height_ratios=[3, 2] * len(exps),
+    )
+    for i, e in enumerate(exps):
+        t = np.asarray(e["time_s"], dtype=np.float64)
+        meas = np.asarray(e["measured_m"], dtype=np.float64)
+        sim = np.asarray(e["simulated_m"], dtype=np.float64)
+        travel = float(np.ptp(meas))
+        scale, unit = (1e3, "mm") if travel > 10e-3 else (_UM, "µm")
+        top = fig.add_subplot(gs[2 * i, 0])
+        bottom = fig.add_subplot(gs[2 * i + 1, 0], sharex=top)
+        if "reference_m" in e:
+            top.plot(t, np.asarray(e["reference_m"]) * scale, "k--", lw=0.8, label="reference")
+        top.plot(t, meas * scale, lw=1.2, label="measured")
+        top.plot(t, sim * scale, lw=1.0, label="simulated")
+        after = e.get("simulated_after_m")
+        if after is not None:
+            top.plot(t, np.asarray(after) * scale, lw=1.0, ls="-.", label="simulated (fitted)")
+        top.set_ylabel(f"position [{unit}]")
+        top.set_title(str(e.get("name", f"experiment {i + 1}")), fontsize=10)
+        top.grid(alpha=0.3)
+        top.legend(loc="best", fontsize=7)
+        seen: set[str] = set()
+        for phase, a, b in _intervals(e, t.size):
+            if a >= t.size:
+                continue
+            t1 = t[min(b, t.size - 1)]
+            bottom.axvspan(
+                t[a],
+                t1,
+                color=PHASE_COLOURS.get(phase, "#eeeeee"),
+                alpha=0.6,
+                lw=0,
+                label=None if phase in seen else phase,
+            )
+            seen.add(phase)
+        bottom.plot(t, (meas - sim) * _UM, lw=0.9, color="C3", label="residual")
+        if after is not None:
+            bottom.plot(
+                t, (meas - np.asarray(after)) * _UM, lw=0.8, color="C2", label="residual (fitted)"
+            )
+        bottom.axhline(0.0, color="k", lw=0.5)
+        bottom.set_ylabel("residual [µm]")
+        bottom.set_xlabel("time [s]")
+        bottom.grid(alpha=0.3)
+        bottom.legend(loc="upper right", fontsize=6, ncol=4)
+    if has_bars:
+        ax = fig.add_subplot(gs[:, 1])
+        names = list(PHASES)
+        y = np.arange(len(names))
+        h = 0.38
+        for k, (label, vals) in enumerate(
+            (("before", segment_rms_before_m), ("after", segment_rms_after_m))
+        ):
+            if not vals:
+                continue
+            width = [(_num(vals.get(n)) or 0.0) * _UM for n in names]
+            ax.barh(
+                y + (k - 0.5) * h,
+                width,
+                height=h,
+                label=label,
+                color=[PHASE_COLOURS[n] for n in names],
+                edgecolor="k",
+                hatch=None if k == 0 else "//",
+            )
+        ax.set_yticks(y, names)
+        ax.invert_yaxis()
+        ax.set_xlabel("RMS residual [µm]")
+        ax.set_title("per phase", fontsize=10)
+        ax.grid(alpha=0.3, axis="x")
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def plot_residual_spectrum(
+    time_spectrum: Mapping[str, Any] | None,
+    spatial_spectrum: Mapping[str, Any] | None,
+    path: str | Path | None = None,
+    *,
+    lead_m: float | None = None,
+    time_spectrum_after: Mapping[str, Any] | None = None,
+    spatial_spectrum_after: Mapping[str, Any] | None = None,
+    title: str | None = None,
+) -> Any:
+    """Residual power spectra: vs frequency (left) and vs spatial frequency (right, the lead
+    period marked).
+
+    Parameters
+    ----------
+    time_spectrum, spatial_spectrum : mapping, optional
+        ``{"frequency": array, "psd": array}`` (e.g.
+        :meth:`~nanostage.diagnosis.gap.Spectrum.to_dict`); Hz and m²/Hz, or 1/m and m²·m.
+    path : str or Path, optional
+        Save as PNG there.
+    lead_m : float, optional
+        Spatial period to mark, m (the screw lead).
+    time_spectrum_after, spatial_spectrum_after : mapping, optional
+        The same after the fit, overlaid.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig = _figure((11.0, 4.0))
+    ax_t, ax_x = fig.subplots(1, 2)
+
+    def draw(ax: Any, spec: Mapping[str, Any] | None, xscale: float, label: str, ls: str) -> None:
+        if not spec:
+            return
+        f = np.asarray(spec["frequency"], dtype=np.float64)
+        p = np.asarray(spec["psd"], dtype=np.float64)
+        ok = (f > 0) & (p > 0)
+        if ok.any():
+            ax.loglog(f[ok] * xscale, p[ok], ls, lw=1.0, label=label)
+
+    draw(ax_t, time_spectrum, 1.0, "before", "-")
+    draw(ax_t, time_spectrum_after, 1.0, "after", "--")
+    ax_t.set_xlabel("frequency [Hz]")
+    ax_t.set_ylabel("residual PSD [m²/Hz]")
+    ax_t.set_title("in time", fontsize=10)
+    draw(ax_x, spatial_spectrum, 1e-3, "before", "-")
+    draw(ax_x, spatial_spectrum_after, 1e-3, "after", "--")
+    ax_x.set_xlabel("spatial frequency [1/mm]")
+    ax_x.set_ylabel("residual PSD [m²·m]")
+    ax_x.set_title("in space (motion only)", fontsize=10)
+    if not spatial_spectrum:
+        ax_x.text(0.5, 0.5, "no motion stretches", transform=ax_x.transAxes, ha="center")
+    if lead_m:
+        f_lead = 1e-3 / lead_m
+        ax_x.axvline(f_lead, color="r", ls=":", lw=1.0, label=f"lead {lead_m * 1e3:g} mm")
+        lo, hi = ax_x.get_xlim()
+        ax_x.set_xlim(min(lo, 0.5 * f_lead), max(hi, 2.0 * f_lead))
+    for ax in (ax_t, ax_x):
+        ax.grid(alpha=0.3, which="both")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# Everything
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ReportFiles:
+    """Paths written by :func:`write_report` (figures None when not drawn)."""
+
+    json: Path
+    markdown: Path
+    gap_map: Path | None
+    residual_spectrum: Path | None
+
+
+def _phase_rms(gap: Any) -> dict[str, float | None] | None:
+    stats = _gap_stats(gap)
+    if stats is None:
+        return None
+    phase = stats.get("partitions", {}).get("phase")
+    if not isinstance(phase, Mapping):
+        return None
+    return {k: _num(v.get("rms_m")) for k, v in phase.items()}
+
+
+def write_report(
+    report: Mapping[str, Any],
+    out_dir: str | Path,
+    *,
+    gap_experiments: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Sim-to-real gap diagnosis",
+    figures: bool = True,
+) -> ReportFiles:
+    """Write ``report.json``, ``report.md`` and (with matplotlib) the figures.
+
+    Parameters
+    ----------
+    report : mapping
+        See the module docstring.
+    out_dir : str or Path
+        Output directory (created).
+    gap_experiments : sequence of mapping, optional
+        Arrays for the gap map (see :func:`plot_gap_map`); without them no gap map.
+    title : str
+        Report title.
+    figures : bool
+        Draw figures (skipped silently when matplotlib is missing).
+
+    Returns
+    -------
+    ReportFiles
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    before, after = report.get("gap_before"), report.get("gap_after")
+    gap_map = spectrum = None
+    if figures:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:  # pragma: no cover - exercised only without the extra
+            figures = False
+    if figures and gap_experiments:
+        gap_map = out / FIGURE_NAMES["gap_map"]
+        plot_gap_map(
+            gap_experiments,
+            gap_map,
+            segment_rms_before_m=_phase_rms(before),
+            segment_rms_after_m=_phase_rms(after),
+            title=title,
+        )
+    if figures and isinstance(before, Mapping) and before.get("time_spectrum"):
+        spectrum = out / FIGURE_NAMES["residual_spectrum"]
+        a = after if isinstance(after, Mapping) else {}
+        plot_residual_spectrum(
+            before.get("time_spectrum"),
+            before.get("spatial_spectrum"),
+            spectrum,
+            lead_m=_num(before.get("lead_m")),
+            time_spectrum_after=a.get("time_spectrum"),
+            spatial_spectrum_after=a.get("spatial_spectrum"),
+            title=title,
+        )
+    links = {}
+    if gap_map is not None:
+        links["Gap map"] = gap_map.name
+    if spectrum is not None:
+        links["Residual spectrum"] = spectrum.name
+    json_path = write_json(report, out / JSON_NAME)
+    md_path = out / MARKDOWN_NAME
+    md_path.write_text(markdown_report(report, title=title, figures=links), encoding="utf-8")
+    return ReportFiles(
+        json=json_path, markdown=md_path, gap_map=gap_map, residual_spectrum=spectrum
+    )
