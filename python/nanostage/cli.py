@@ -27,6 +27,37 @@ def _reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _diagnose(args: argparse.Namespace) -> int:
+    from .diagnosis.manifest import ManifestError
+    from .diagnosis.run import diagnose
+
+    try:
+        d = diagnose(args.manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
+    except (ManifestError, ValueError) as exc:
+        print(f"nanostage diagnose: {exc}", file=sys.stderr)
+        return 2
+    r = d.report
+    before, after = r["gap_before"]["total_rms_m"], r["gap_after"]["total_rms_m"]
+    print(
+        f"validation gap {before * 1e9:.0f} nm → {after * 1e9:.0f} nm with "
+        f"{', '.join(r['selected']) or 'no effect'} (noise floor "
+        f"{r['noise_floor_rms_m'] * 1e9:.0f} nm); report in {args.out}/report.md"
+    )
+    return 0
+
+
+def _benchmark(args: argparse.Namespace) -> int:
+    from .diagnosis.benchmark import run_benchmark
+
+    s = run_benchmark(args.out, cases=args.cases, seed=args.seed, progress=not args.quiet)
+    print(
+        f"top-1 {s['top1']:.0%}, false alarms {s['false_alarm_rate']:.0%}, median shrink "
+        f"{s['median_shrink']:.0%}, median {s['median_seconds_per_case']:.0f} s per case; "
+        f"wrote {args.out}/benchmark.md"
+    )
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``nanostage`` command."""
     parser = argparse.ArgumentParser(prog="nanostage", description=__doc__)
@@ -36,6 +67,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     rep.add_argument("--no-plot", action="store_true", help="skip steps.png")
     rep.set_defaults(func=_reproduce)
     iso230_2.add_cli(sub)
+    dg = sub.add_parser(
+        "diagnose", help="locate and explain the gap between a model and measured experiments"
+    )
+    dg.add_argument("manifest", help="TOML manifest (see docs/diagnosis.md)")
+    dg.add_argument("--out", default="diagnosis", help="output directory (default: diagnosis)")
+    dg.add_argument("--no-plot", action="store_true", help="skip the figures")
+    dg.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    dg.set_defaults(func=_diagnose)
+    bm = sub.add_parser(
+        "diagnose-benchmark", help="blind check of the diagnosis on synthetic hidden effects"
+    )
+    bm.add_argument("--out", default="diagnose-benchmark", help="output directory")
+    bm.add_argument("--cases", type=int, default=16, help="number of cases (default 16)")
+    bm.add_argument("--seed", type=int, default=1, help="seed of the case draws (default 1)")
+    bm.add_argument("--quiet", action="store_true", help="no per-case lines")
+    bm.set_defaults(func=_benchmark)
     args = parser.parse_args(argv)
     return int(args.func(args))
 

@@ -69,6 +69,7 @@ class DiagnosisSettings:
     penalty_base: float = 0.03
     penalty_per_param: float = 0.02
     floor_factor: float = 1.5
+    explainable_factor: float = 1.5
     forward_rounds: int = 3
     forward_top: int = 4
     seed: int = 0
@@ -189,7 +190,9 @@ def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
     jac = np.asarray(sol.jac, dtype=np.float64)
     n, k = jac.shape
     dof = max(n - k, 1)
-    s2 = 2.0 * float(sol.cost) / dof
+    # Residual samples are autocorrelated: inflate the variance by the integrated
+    # autocorrelation time (in samples) of the residual.
+    s2 = 2.0 * float(sol.cost) / dof * _autocorrelation_time(np.asarray(sol.fun))
     try:
         cov = np.linalg.pinv(jac.T @ jac) * s2
     except np.linalg.LinAlgError:
@@ -204,6 +207,21 @@ def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
         var = float(cov[i, i])
         out.append(abs(dv) * math.sqrt(var) if var > 0 and math.isfinite(var) else math.inf)
     return out
+
+
+def _autocorrelation_time(r: FloatArray, max_lag: int = 500) -> float:
+    """Integrated autocorrelation time ``1 + 2·Σρ(k)``, summed until ρ first drops below 0."""
+    r = r - float(np.mean(r))
+    var = float(np.dot(r, r))
+    if var <= 0.0 or len(r) < 4:
+        return 1.0
+    tau = 1.0
+    for lag in range(1, min(max_lag, len(r) // 2)):
+        rho = float(np.dot(r[:-lag], r[lag:])) / var
+        if rho <= 0.0:
+            break
+        tau += 2.0 * rho
+    return tau
 
 
 def _rms(res: Sequence[FloatArray]) -> float:
@@ -266,6 +284,8 @@ class CandidateResult:
 
     effect: str
     fit: Fit
+    #: The fit of every fold (``fit`` is the first).
+    fold_fits: list[Fit]
     #: Mean-square gap per validation experiment (all folds, fold order), m².
     validation_ms: FloatArray
     validation_rms_m: float
@@ -411,7 +431,7 @@ def diagnose_experiments(
         selected: list[str] = []
         rounds: list[list[CandidateResult]] = []
         current = nominal
-        current_fit = nominal_fits[0]
+        current_fits = nominal_fits
         current_ms = base_ms
         cands, skipped = applicable_candidates(nominal, candidates)
         pool_names = [c.name for c in cands]
@@ -448,15 +468,17 @@ def diagnose_experiments(
                 break
             selected.append(best.effect)
             current = _with_effect(current, best, cand_now)
-            current_fit = best.fit
+            current_fits = best.fold_fits
             current_ms = best.validation_ms
     return {
         "nominal": nominal_fits[0],
+        "nominal_fits": nominal_fits,
         "nominal_validation_ms": base_ms,
         "floor_rms_m": floor,
         "rounds": rounds,
         "selected": selected,
-        "final": current_fit,
+        "final": current_fits[0],
+        "final_fits": current_fits,
         "final_validation_ms": current_ms,
         "skipped": skipped,
         "timing_s": time.perf_counter() - t_start,
@@ -514,6 +536,12 @@ def _judge(
     if shrink <= penalty:
         ok = False
         reasons.append(f"shrink {shrink:.1%} ≤ complexity penalty {penalty:.0%}")
+    if rms0 <= st.explainable_factor * ctx.floor:
+        ok = False
+        reasons.append(
+            f"the gap before ({rms0 * 1e9:.0f} nm) is within {st.explainable_factor}× the noise "
+            f"floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
+        )
     if gain <= floor_gain:
         ok = False
         reasons.append(
@@ -527,6 +555,7 @@ def _judge(
     return CandidateResult(
         effect=cand.name,
         fit=fits[0],
+        fold_fits=fits,
         validation_ms=ms,
         validation_rms_m=rms1,
         shrink=shrink,

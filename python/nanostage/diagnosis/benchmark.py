@@ -1,0 +1,346 @@
+"""``nanostage diagnose-benchmark``: a blind check of the diagnosis on synthetic data.
+
+Each case draws a truth model: the seed axis with its uncertain friction levels perturbed,
+one hidden effect (or none) with random plausible parameters, trial-to-trial stochastic
+friction, encoder noise before quantisation, and a much finer integrator tolerance. It
+simulates a designed set of experiments (several step sizes and start positions, both
+directions, reversals, two dwell times, a repeated experiment), writes them as CSV traces
+with a manifest, and runs the diagnosis on the files alone.
+
+Avoiding the inverse crime: a hidden LuGre-like presliding effect is simulated with a
+six-element GMS of a different shape (the candidates are LuGre and a three-element GMS);
+the hidden backlash has a contact stiffness and damping different from the candidate's
+fixed values; delays are whole samples in the truth and in the candidate alike (an exact
+model of the FPGA timing), but the truth adds noise, quantisation and scatter.
+
+Scores: top-1 identification over the cases with an effect, the false-alarm rate over the
+no-effect cases, the median validation-gap shrink of the selected model over the cases
+with an effect, and a confusion matrix (hidden → first selected).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import presets
+from ..config import Plant, System
+from ..effects import (
+    Backlash,
+    DwellStaticFriction,
+    Effects,
+    EncoderErrors,
+    FrictionModifiers,
+    Gms,
+    StochasticFriction,
+    lead_periodic_friction,
+)
+from ..experiment import Experiment
+from ..simulate import simulate
+from .engine import DiagnosisSettings
+from .run import diagnose
+from .traces import write_trace_csv
+
+__all__ = ["HIDDEN_EFFECTS", "generate_case", "run_benchmark"]
+
+#: Hidden effects drawn by the benchmark ("none": the nominal structure is right).
+HIDDEN_EFFECTS: tuple[str, ...] = (
+    "none",
+    "asymmetric_friction",
+    "dwell_static_friction",
+    "lead_periodic_friction",
+    "backlash",
+    "computation_delay",
+    "offset_force",
+    "presliding_gms",
+)
+
+#: Which diagnosed names count as finding each hidden effect.
+ACCEPT: dict[str, set[str]] = {
+    "presliding_gms": {"gms", "lugre"},
+}
+
+# (step(s) in m, start in m, dwell before the first move in s, role)
+DESIGN: tuple[tuple[tuple[float, ...], float, float, str], ...] = (
+    ((100e-6,), 2.0e-3, 0.02, "train"),
+    ((-100e-6,), 4.5e-3, 0.5, "validate"),
+    ((500e-6,), 7.0e-3, 0.5, "validate"),
+    ((-500e-6,), 9.3e-3, 0.02, "train"),
+    ((1e-3,), 12.0e-3, 0.02, "train"),
+    ((-1e-3,), 15.1e-3, 0.5, "validate"),
+    ((200e-6, -200e-6), 17.0e-3, 0.02, "train"),
+    ((-200e-6, 200e-6), 19.6e-3, 0.5, "validate"),
+    ((100e-6,), 5.0e-3, 0.02, "train"),
+    ((100e-6,), 5.0e-3, 0.02, "validate"),
+)
+MOVE_S = 0.3
+
+
+def _hidden(name: str, rng: np.random.Generator, base: System) -> tuple[System, dict[str, Any]]:
+    fx = base.effects
+    info: dict[str, Any] = {}
+    if name == "asymmetric_friction":
+        a = float(rng.uniform(0.15, 0.4) * rng.choice([-1, 1]))
+        fx = dc.replace(fx, motor_friction=FrictionModifiers(asymmetry=a))
+        info["asymmetry"] = a
+    elif name == "dwell_static_friction":
+        rise = float(rng.uniform(0.5, 1.5))  # relative to the static force
+        tau = float(rng.uniform(0.05, 0.3))
+        p = base.plant
+        assert isinstance(p, Plant)
+        eta = p.gearhead.efficiency * p.screw.efficiency
+        fs = eta * p.motor_friction.static_torque_nm / p.transmission_m_per_rad
+        fx = dc.replace(
+            fx,
+            motor_friction=FrictionModifiers(
+                dwell=DwellStaticFriction(rise_n=rise * fs, time_constant_s=tau)
+            ),
+        )
+        info |= {"rise_n": rise * fs, "time_constant_s": tau}
+    elif name == "lead_periodic_friction":
+        amp = float(rng.uniform(0.15, 0.35))
+        ph = float(rng.uniform(-math.pi, math.pi))
+        fx = dc.replace(
+            fx,
+            position_friction=(
+                lead_periodic_friction(
+                    side="motor", lead_m=2e-3, amplitudes=(amp,), phases_rad=(ph,)
+                ),
+            ),
+        )
+        info |= {"amplitude": amp, "phase_rad": ph}
+    elif name == "backlash":
+        w = float(rng.uniform(5e-6, 30e-6))
+        fx = dc.replace(
+            fx,
+            backlash=Backlash(width_m=w, contact_stiffness_n_per_m=2.5e7, damping_n_s_per_m=800.0),
+        )
+        info["width_m"] = w
+    elif name == "computation_delay":
+        d = int(rng.integers(1, 3))
+        fx = dc.replace(fx, computation_delay_samples=d)
+        info["samples"] = d
+    elif name == "offset_force":
+        f = float(rng.uniform(3.0, 10.0) * rng.choice([-1, 1]))
+        p = base.plant
+        assert isinstance(p, Plant)
+        table = dc.replace(p.table, external_force_n=f)
+        base = dc.replace(base, plant=dc.replace(p, table=table))
+        info["external_force_n"] = f
+    elif name == "presliding_gms":
+        p = base.plant
+        assert isinstance(p, Plant)
+        fc = p.dahl.coulomb_force_n
+        k = float(rng.uniform(0.5, 2.0)) * p.dahl.stiffness_n_per_m
+        weights = (0.05, 0.1, 0.15, 0.2, 0.2, 0.3)
+        ratios = (1.0, 0.6, 0.35, 0.2, 0.1, 0.05)
+        fs = fc * float(rng.uniform(1.3, 1.8))
+        fx = dc.replace(
+            fx,
+            table_friction=Gms(
+                stiffness_n_per_m=tuple(k * r / sum(ratios) for r in ratios),
+                weights=weights,
+                coulomb_force_n=fc,
+                static_force_n=fs,
+                stribeck_velocity_m_per_s=float(rng.uniform(2e-4, 2e-3)),
+            ),
+        )
+        info |= {"stiffness_n_per_m": k, "static_force_n": fs}
+    elif name != "none":
+        raise ValueError(f"unknown hidden effect {name!r}; valid: {', '.join(HIDDEN_EFFECTS)}")
+    return dc.replace(base, effects=fx), info
+
+
+def _gains(step_m: float) -> tuple[float, float, float]:
+    """Table 1 gains of the nearest Table 1 step size (log distance)."""
+    sizes = (100e-6, 500e-6, 1e-3, 10e-3)
+    best = min(sizes, key=lambda s: abs(math.log(s / step_m)))
+    return presets.table1_gains(best)
+
+
+def generate_case(
+    hidden: str, seed: int, out_dir: Path, *, level_spread: float = 0.005
+) -> tuple[Path, dict[str, Any]]:
+    """Write one case's traces and manifest into ``out_dir``; returns the manifest path and
+    the truth (hidden effect, its parameters, the perturbed nominal values)."""
+    rng = np.random.default_rng(seed)
+    base = presets.seed(1e-3)
+    p = base.plant
+    assert isinstance(p, Plant)
+    fc = float(p.dahl.coulomb_force_n * rng.uniform(0.85, 1.15))
+    mf = p.motor_friction
+    scale = float(rng.uniform(0.85, 1.15))
+    plant = dc.replace(
+        p,
+        dahl=dc.replace(p.dahl, coulomb_force_n=fc),
+        motor_friction=dc.replace(
+            mf,
+            static_torque_nm=mf.static_torque_nm * scale,
+            coulomb_torque_nm=mf.coulomb_torque_nm * scale,
+        ),
+    )
+    truth = dc.replace(
+        base,
+        plant=plant,
+        integrator=dc.replace(base.integrator, rtol=1e-9, atol_position_m=1e-13),
+        effects=Effects(
+            stochastic=StochasticFriction(level_spread=level_spread),
+            encoder_errors=EncoderErrors(noise_std_m=5e-9),
+        ),
+    )
+    truth, info = _hidden(hidden, rng, truth)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fc0 = p.dahl.coulomb_force_n
+    ts_lo = max(0.6 * mf.static_torque_nm, mf.coulomb_torque_nm)
+    lines = [
+        "[model]",
+        'preset = "seed"',
+        'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.static_torque_nm"]',
+        "",
+        "[model.bounds]",
+        f'"plant.dahl.coulomb_force_n" = [{0.6 * fc0}, {1.5 * fc0}]',
+        f'"plant.motor_friction.static_torque_nm" = [{ts_lo}, {1.5 * mf.static_torque_nm}]',
+        "",
+        "[diagnosis]",
+        'candidates = "all"',
+        f"seed = {seed}",
+        "",
+    ]
+    for i, (steps, x0, dwell, role) in enumerate(DESIGN):
+        n0 = round(dwell / 1e-3)
+        n_move = round(MOVE_S / 1e-3)
+        ref = np.full(n0 + n_move * len(steps), x0)
+        x = x0
+        for j, s in enumerate(steps):
+            x += s
+            ref[n0 + j * n_move :] = x
+        g = presets.table1_gains(
+            max(abs(s) for s in steps)
+            if max(abs(s) for s in steps) in (100e-6, 500e-6, 1e-3, 10e-3)
+            else 100e-6
+        )
+        sys_i = presets.with_gains(truth, kp=g[0], ki=g[1], kd=g[2])
+        tr = simulate(sys_i, ref, seed=seed * 1000 + i, initial_position_m=x0)
+        exp = Experiment(
+            name=f"exp{i:02d}",
+            time_s=tr.time_s,
+            reference_m=ref,
+            position_m=tr.encoder_position_m,
+        )
+        write_trace_csv(exp, out_dir / f"exp{i:02d}.csv")
+        lines += [
+            "[[experiment]]",
+            f'name = "exp{i:02d}"',
+            f'file = "exp{i:02d}.csv"',
+            f'role = "{role}"',
+            f"controller = {{ kp = {g[0]}, ki = {g[1]}, kd = {g[2]} }}",
+            "",
+        ]
+    manifest = out_dir / "manifest.toml"
+    manifest.write_text("\n".join(lines))
+    truth_info = {
+        "hidden": hidden,
+        "parameters": info,
+        "dahl_coulomb_force_n": fc,
+        "motor_friction_scale": scale,
+        "seed": seed,
+    }
+    (out_dir / "truth.json").write_text(json.dumps(truth_info, indent=1))
+    return manifest, truth_info
+
+
+def run_benchmark(
+    out_dir: str | Path,
+    *,
+    cases: int = 16,
+    seed: int = 1,
+    hidden: Sequence[str] | None = None,
+    settings: DiagnosisSettings | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Generate ``cases`` cases (hidden effects cycled through ``hidden``, parameters random
+    from ``seed``), diagnose each from its files alone, score, and write ``benchmark.json``
+    and ``benchmark.md`` into ``out_dir``."""
+    out = Path(out_dir)
+    names = list(hidden or HIDDEN_EFFECTS)
+    rows = []
+    t0 = time.perf_counter()
+    for c in range(cases):
+        h = names[c % len(names)]
+        case_dir = out / f"case{c:02d}_{h}"
+        manifest, truth = generate_case(h, seed * 10_000 + c, case_dir)
+        t = time.perf_counter()
+        d = diagnose(
+            manifest, case_dir / "report", settings=settings, progress=False, figures=False
+        )
+        rep = d.report
+        found = rep["selected"][0] if rep["selected"] else "none"
+        ok = found in ACCEPT.get(h, {h})
+        before = rep["gap_before"]["total_rms_m"]
+        after = rep["gap_after"]["total_rms_m"]
+        floor = rep["noise_floor_rms_m"]
+        shrink = 1.0 - after / before if before > 0 else 0.0
+        rows.append(
+            {
+                "case": c,
+                "hidden": h,
+                "found": found,
+                "selected": rep["selected"],
+                "correct": ok,
+                "gap_before_rms_m": before,
+                "gap_after_rms_m": after,
+                "noise_floor_rms_m": floor,
+                "shrink": shrink,
+                "seconds": time.perf_counter() - t,
+                "truth": truth["parameters"],
+            }
+        )
+        if progress:
+            print(
+                f"case {c + 1}/{cases} hidden {h:24s} found {found:24s} "
+                f"{'ok ' if ok else 'MISS'} gap {before * 1e9:7.0f} → {after * 1e9:7.0f} nm "
+                f"({shrink:+.0%})  {time.perf_counter() - t:.0f} s",
+                flush=True,
+            )
+    eff = [r for r in rows if r["hidden"] != "none"]
+    nulls = [r for r in rows if r["hidden"] == "none"]
+    labels = sorted({r["hidden"] for r in rows} | {r["found"] for r in rows})
+    confusion = {h: {f: 0 for f in labels} for h in labels}
+    for r in rows:
+        confusion[r["hidden"]][r["found"]] += 1
+    summary = {
+        "cases": cases,
+        "seed": seed,
+        "top1": float(np.mean([r["correct"] for r in eff])) if eff else math.nan,
+        "false_alarm_rate": float(np.mean([r["found"] != "none" for r in nulls]))
+        if nulls
+        else math.nan,
+        "median_shrink": float(np.median([r["shrink"] for r in eff])) if eff else math.nan,
+        "median_seconds_per_case": float(np.median([r["seconds"] for r in rows])),
+        "total_seconds": time.perf_counter() - t0,
+        "confusion": confusion,
+        "rows": rows,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "benchmark.json").write_text(json.dumps(summary, indent=1, default=float))
+    md = [
+        "# Diagnosis blind benchmark",
+        "",
+        f"{cases} cases, seed {seed}. Top-1 {summary['top1']:.0%}, false alarms "
+        f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.0%}, "
+        f"median {summary['median_seconds_per_case']:.0f} s per case.",
+        "",
+        "| hidden \\ found | " + " | ".join(labels) + " |",
+        "|---" * (len(labels) + 1) + "|",
+    ]
+    for h in labels:
+        md.append(f"| {h} | " + " | ".join(str(confusion[h][f]) for f in labels) + " |")
+    (out / "benchmark.md").write_text("\n".join(md) + "\n")
+    return summary

@@ -1,0 +1,398 @@
+"""``nanostage diagnose``: read a manifest, run the engine, write the report.
+
+The report (``report.json``; schema in docs/diagnosis.md) has at least
+
+``gap_before``
+    the validation gap of the calibrated nominal model: ``total_rms_m``, ``by_segment``
+    (phase → RMS and share of the total sum of squares) and the full gap analysis;
+``candidates``
+    every candidate of the first round, best first: ``effect``, ``validation_rms_m``,
+    ``shrink`` (fraction of the validation RMS gap removed), ``significant``,
+    ``parameters`` (value, standard error, unit), ``p_value`` and ``why``;
+``selected``
+    the effects kept by forward selection (possibly empty);
+``gap_after``
+    the validation gap with the selected effects (same form as ``gap_before``);
+
+plus ``gap_best_single``, ``noise_floor_rms_m``, ``forward_selection``, ``evidence``,
+``advice``, ``skipped``, ``nominal_parameters``, ``unexplained_rms_m`` and ``timing_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import System
+from ..experiment import Experiment
+from .candidates import CANDIDATES, Param, applicable_candidates
+from .engine import (
+    CandidateResult,
+    DiagnosisSettings,
+    Fit,
+    diagnose_experiments,
+    simulated_mean_reading,
+)
+from .gap import analyse_gap
+from .manifest import Manifest, get_path, load_manifest, replace_paths
+from .report import write_report
+from .segments import segment
+
+__all__ = ["DISTINGUISHING_EXPERIMENT", "Diagnosis", "diagnose", "experiment_advice"]
+
+#: For pairs of effects that leave similar signatures: the experiment that separates them.
+DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
+    frozenset({"asymmetric_friction", "offset_force"}): "moves in both directions at two "
+    "very different speeds (e.g. 100 µm and 10 mm steps): an offset force is the same at "
+    "every speed, asymmetric friction scales with the friction level",
+    frozenset({"backlash", "drive_compliance"}): "a slow reversal: backlash gives lost "
+    "motion of a fixed width, a compliance a deflection proportional to the force",
+    frozenset({"lead_periodic_friction", "position_random_friction"}): "the same move at "
+    "start positions spaced by a quarter of the screw lead over several leads",
+    frozenset({"dwell_static_friction", "stribeck"}): "the same move after dwells of "
+    "0.05 s, 0.5 s and 5 s: only rising static friction depends on the dwell",
+    frozenset({"frictional_memory", "stribeck"}): "moves with different accelerations to "
+    "the same speed: only frictional memory depends on the rate of change of velocity",
+    frozenset({"sensor_delay", "computation_delay"}): "log the controller output: a "
+    "sensor delay shifts the command against the reading, a computation delay the motion "
+    "against the command",
+    frozenset({"lugre", "gms"}): "small reversals inside a larger one (minor loops): only "
+    "GMS returns to the outer branch (non-local memory)",
+    frozenset({"amplifier_dynamics", "computation_delay"}): "a step of the command with "
+    "the loop open: a delay shifts, a finite bandwidth rounds the response",
+}
+
+
+def _moves(e: Experiment) -> list[tuple[int, float, float]]:
+    """(start index, dwell before it in s, signed size in m) of each reference change."""
+    ref = np.asarray(e.reference_m)
+    idx = np.flatnonzero(np.diff(ref) != 0) + 1
+    out: list[tuple[int, float, float]] = []
+    prev = 0
+    for k in idx:
+        if k - 1 > prev or not out:
+            out.append((int(k), float(e.time_s[k] - e.time_s[prev]), float(ref[k] - ref[k - 1])))
+        prev = int(k)
+    return out
+
+
+def experiment_advice(
+    experiments: Sequence[Experiment],
+    lead_m: float | None,
+    results: Sequence[CandidateResult],
+    penalty: float,
+) -> list[dict[str, Any]]:
+    """What the experiments cannot reveal, and which experiment would."""
+    advice: list[dict[str, Any]] = []
+    moves = [m for e in experiments for m in _moves(e)]
+    signs = {math.copysign(1.0, m[2]) for m in moves if m[2] != 0}
+    if len(signs) <= 1:
+        advice.append(
+            {
+                "effects": ["backlash", "asymmetric_friction", "offset_force"],
+                "issue": "all moves go in one direction: there is no reversal, so backlash "
+                "cannot show, and direction-dependent friction cannot be told from an offset "
+                "force",
+                "experiment": "add moves in the opposite direction and reversals (e.g. "
+                "+100 µm, −100 µm, +1 mm, −1 mm)",
+            }
+        )
+    dwells = [m[1] for m in moves if m[1] > 0]
+    if dwells and max(dwells) < 2.0 * min(dwells):
+        advice.append(
+            {
+                "effects": ["dwell_static_friction"],
+                "issue": f"all dwell times before moves lie within a factor 2 "
+                f"({min(dwells):.3g}–{max(dwells):.3g} s): rising static friction cannot be "
+                "seen",
+                "experiment": "repeat one move after dwells of 0.05 s, 0.5 s and 5 s",
+            }
+        )
+    span = max(float(np.ptp(e.position_m)) for e in experiments)
+    lo = min(float(np.min(e.position_m)) for e in experiments)
+    hi = max(float(np.max(e.position_m)) for e in experiments)
+    if lead_m is not None and hi - lo < 2.0 * lead_m:
+        advice.append(
+            {
+                "effects": ["lead_periodic_friction", "position_random_friction"],
+                "issue": f"the experiments cover {(hi - lo) * 1e3:.3g} mm, less than two "
+                f"screw leads ({2 * lead_m * 1e3:g} mm): position-periodic friction cannot be "
+                "resolved",
+                "experiment": "the same move at start positions spread over at least three leads",
+            }
+        )
+    del span
+    refs: dict[tuple[int, int], int] = {}
+    for e in experiments:
+        travel_nm = round(float(np.sum(np.abs(np.diff(e.reference_m)))) * 1e9)
+        key = (len(e.reference_m), travel_nm)
+        refs[key] = refs.get(key, 0) + 1
+    if max(refs.values()) < 2:
+        advice.append(
+            {
+                "effects": ["stochastic_friction"],
+                "issue": "no experiment is repeated: the trial-to-trial scatter (noise floor) "
+                "is only estimated from quantisation and sensor noise",
+                "experiment": "repeat one experiment 3–5 times",
+            }
+        )
+    good = [r for r in results if r.shrink > penalty]
+    for i, a in enumerate(good):
+        for b in good[i + 1 :]:
+            d = a.validation_ms - b.validation_ms
+            if len(d) < 2:
+                continue
+            se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
+            close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.15 * min(
+                a.validation_rms_m, b.validation_rms_m
+            )
+            if close and abs(float(np.mean(d))) <= 2.0 * se:
+                pair = frozenset({a.effect, b.effect})
+                advice.append(
+                    {
+                        "effects": sorted(pair),
+                        "issue": f"{a.effect} and {b.effect} fit the validation data equally "
+                        f"well ({a.validation_rms_m * 1e9:.0f} vs "
+                        f"{b.validation_rms_m * 1e9:.0f} nm)",
+                        "experiment": DISTINGUISHING_EXPERIMENT.get(
+                            pair,
+                            "an experiment that exercises one effect and not the other "
+                            "(see their signatures)",
+                        ),
+                    }
+                )
+    return advice
+
+
+def _gap(
+    experiments: Sequence[Experiment], simulated: Sequence[np.ndarray], lead_m: float | None
+) -> dict[str, Any]:
+    ga = analyse_gap(experiments, simulated, lead_m=lead_m)
+    d = ga.to_dict()
+    phases = ga.overall.partitions.get("phase", {})
+    d["total_rms_m"] = ga.overall.rms_m
+    d["by_segment"] = {k: {"rms_m": g.rms_m, "share": g.share} for k, g in phases.items()}
+    return d
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Diagnosis:
+    """What :func:`diagnose` returns: the report dict and where it was written."""
+
+    report: dict[str, Any]
+    out_dir: Path | None
+
+
+def _lead(system: System) -> float | None:
+    screw = getattr(system.plant, "screw", None)
+    return float(screw.lead_m) if screw is not None else None
+
+
+def diagnose(
+    manifest: str | Path | Manifest,
+    out_dir: str | Path | None = None,
+    *,
+    settings: DiagnosisSettings | None = None,
+    progress: bool = True,
+    figures: bool = True,
+) -> Diagnosis:
+    """Diagnose the gap between a nominal model and measured experiments (see the module
+    docstring for the report). All input errors are raised before any fitting."""
+    m = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
+    pairs = m.experiments()
+    by_name = {spec.name: exp for spec, exp in pairs}
+    specs = {spec.name: spec for spec, _ in pairs}
+    nominal = m.system()
+    st = settings or DiagnosisSettings(seed=m.diagnosis.seed)
+    for name, e in by_name.items():
+        t = nominal.sample_period_s
+        if abs(e.sample_period_s - t) > 1e-6 * t:
+            raise ValueError(
+                f"{m.path}: experiment {name!r} ({e.source}) is sampled every "
+                f"{e.sample_period_s:g} s but the controller runs every {t:g} s"
+            )
+    systems = {n: m.system(specs[n]) for n in by_name}
+    gains = {
+        n: {k: get_path(systems[n], k) for k in _controller_paths(systems[n])} for n in by_name
+    }
+
+    def adapt(system: System, e: Experiment) -> System:
+        g = gains.get(e.name)
+        return replace_paths(system, g) if g else system
+
+    free = [
+        (
+            path,
+            Param(
+                name=path,
+                unit="",
+                lower=m.model.bounds[path][0],
+                upper=m.model.bounds[path][1],
+                initial=m.model.initial[path],
+                log=m.model.bounds[path][0] > 0
+                and m.model.bounds[path][1] >= 10 * m.model.bounds[path][0],
+            ),
+        )
+        for path in m.model.free
+    ]
+
+    def set_free(system: System, values: Mapping[str, float]) -> System:
+        return replace_paths(system, dict(values)) if values else system
+
+    folds = [([by_name[n] for n in f.train], [by_name[n] for n in f.validate]) for f in m.splits()]
+    names = [c for c in m.diagnosis.candidates if c in CANDIDATES]
+    cands, _ = applicable_candidates(nominal, names)
+    out = diagnose_experiments(
+        nominal,
+        free,
+        set_free,
+        folds,
+        adapt=adapt,
+        candidates=names,
+        settings=st,
+        progress=progress,
+    )
+    report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
+    report["manifest"] = str(m.path)
+    written = None
+    if out_dir is not None:
+        val = _validation_order(folds)
+        sims = _simulated(out["final_fits"], folds, adapt)
+        gap_exps = [
+            {
+                "name": e.name,
+                "time_s": e.time_s,
+                "reference_m": e.reference_m,
+                "measured_m": e.position_m,
+                "simulated_m": s,
+                "intervals": segment(e).intervals(),
+            }
+            for e, s in zip(val, sims, strict=True)
+        ]
+        write_report(report, out_dir, gap_experiments=gap_exps, figures=figures)
+        written = Path(out_dir)
+    return Diagnosis(report=report, out_dir=written)
+
+
+def _controller_paths(system: System) -> list[str]:
+    ctl = system.controller
+    names = ("kp", "ki", "kd") if hasattr(ctl, "kd") else ("kp_per_s", "kv_v_s_per_m")
+    return [f"controller.{n}" for n in names]
+
+
+def _validation_order(
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
+) -> list[Experiment]:
+    return [e for _, v in folds for e in v]
+
+
+def _simulated(
+    fits: Sequence[Fit],
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
+    adapt: Any,
+) -> list[np.ndarray]:
+    out = []
+    for f, (_, v) in zip(fits, folds, strict=True):
+        out += [simulated_mean_reading(adapt(f.system, e), e) for e in v]
+    return out
+
+
+def assemble_report(
+    out: Mapping[str, Any],
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
+    adapt: Any,
+    lead_m: float | None,
+    st: DiagnosisSettings,
+    candidate_names: Sequence[str],
+) -> dict[str, Any]:
+    """The report dict from the engine's output."""
+    val = _validation_order(folds)
+    rounds: list[list[CandidateResult]] = out["rounds"]
+    first = rounds[0] if rounds else []
+    before = _gap(val, _simulated(out["nominal_fits"], folds, adapt), lead_m)
+    after = _gap(val, _simulated(out["final_fits"], folds, adapt), lead_m)
+    best_single = first[0] if first else None
+    single = (
+        _gap(val, _simulated(best_single.fold_fits, folds, adapt), lead_m) if best_single else None
+    )
+    candidates = [r.to_dict([]) for r in first]
+    evidence = []
+    previous = before
+    for rnd, name in zip(rounds, out["selected"], strict=False):
+        r = next(x for x in rnd if x.effect == name)
+        ev, previous = _evidence(r, previous, val, folds, adapt, lead_m)
+        evidence.append(ev)
+    floor = float(out["floor_rms_m"])
+    total_after = float(after["total_rms_m"])
+    penalty = st.penalty_base + st.penalty_per_param
+    return {
+        "gap_before": before,
+        "candidates": candidates,
+        "selected": list(out["selected"]),
+        "gap_after": after,
+        "gap_best_single": single,
+        "best_single_effect": best_single.effect if best_single else None,
+        "noise_floor_rms_m": floor,
+        "unexplained_rms_m": math.sqrt(max(total_after**2 - floor**2, 0.0)),
+        "forward_selection": [
+            {
+                "round": i + 1,
+                "candidates": [
+                    {
+                        "effect": r.effect,
+                        "validation_rms_m": r.validation_rms_m,
+                        "shrink": r.shrink,
+                        "significant": r.significant,
+                    }
+                    for r in rnd
+                ],
+            }
+            for i, rnd in enumerate(rounds)
+        ],
+        "evidence": evidence,
+        "advice": experiment_advice(val + [e for t, _ in folds for e in t], lead_m, first, penalty),
+        "skipped": dict(out["skipped"]),
+        "nominal_parameters": {
+            n: {"value": v, "std_error": out["nominal"].std_errors.get(n)}
+            for n, v in out["nominal"].values.items()
+        },
+        "folds": [
+            {"train": [e.name for e in t], "validate": [e.name for e in v]} for t, v in folds
+        ],
+        "timing_s": out["timing_s"],
+    }
+
+
+def _evidence(
+    r: CandidateResult,
+    before: Mapping[str, Any],
+    val: Sequence[Experiment],
+    folds: Any,
+    adapt: Any,
+    lead_m: float | None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What the effect fixed relative to the model before it was added (and its gap)."""
+    sims = _simulated(r.fold_fits, folds, adapt)
+    mine = _gap(val, sims, lead_m)
+    seg_b = before["by_segment"]
+    seg_a = mine["by_segment"]
+    fixed = []
+    for k, g in seg_b.items():
+        rb, ra = g["rms_m"], seg_a.get(k, {}).get("rms_m")
+        if rb and ra is not None and math.isfinite(rb) and math.isfinite(ra) and rb > 0:
+            fixed.append((1.0 - ra / rb, k, rb, ra))
+    fixed.sort(reverse=True)
+    words = [f"{k}: {rb * 1e9:.0f} → {ra * 1e9:.0f} nm ({s:+.0%})" for s, k, rb, ra in fixed[:3]]
+    lead_b, lead_a = before.get("lead_share"), mine.get("lead_share")
+    return {
+        "effect": r.effect,
+        "segments_fixed": words,
+        "lead_share_before": lead_b,
+        "lead_share_after": lead_a,
+        "why": r.reasons,
+    }, mine
