@@ -300,19 +300,28 @@ def test_steady_state_stribeck_curve(model, delta, rel):
 
 
 def test_static_map_asymmetry():
-    """Asymmetry a scales the whole map by (1 + a) for v > 0 and (1 − a) for v < 0."""
+    """Asymmetry a scales the levels by (1 ± a), a_v the viscous term by (1 ± a_v) (upper
+    sign for v > 0); with a = a_v the whole map scales."""
     base = StaticFrictionMap(
         static_force_n=_FS3,
         coulomb_force_n=_FC3,
         viscous_n_s_per_m=_FV3,
         stribeck_velocity_m_per_s=_VS3,
     )
-    skewed = dataclasses.replace(base, asymmetry=0.3)
+    skewed = dataclasses.replace(base, asymmetry=0.3, viscous_asymmetry=0.3)
     v = np.r_[-np.geomspace(1e-1, 1e-6, 11), np.geomspace(1e-6, 1e-1, 11)]
     t = np.arange(v.size, dtype=float)
     f0 = friction_response(base, t, np.zeros_like(v), v)
     f1 = friction_response(skewed, t, np.zeros_like(v), v)
     np.testing.assert_allclose(f1, f0 * (1 + 0.3 * np.sign(v)), rtol=1e-14)
+    # Separate asymmetries: only the levels, or only the viscous term.
+    levels = dataclasses.replace(base, asymmetry=0.2)
+    visc = dataclasses.replace(base, viscous_asymmetry=-0.4)
+    f_l = friction_response(levels, t, np.zeros_like(v), v)
+    f_v = friction_response(visc, t, np.zeros_like(v), v)
+    viscous = _FV3 * v
+    np.testing.assert_allclose(f_l, (f0 - viscous) * (1 + 0.2 * np.sign(v)) + viscous, rtol=1e-12)
+    np.testing.assert_allclose(f_v, (f0 - viscous) + viscous * (1 - 0.4 * np.sign(v)), rtol=1e-12)
 
 
 # --------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ __all__ = [
     "SimulationError",
     "__version__",
     "friction_response",
+    "cascade_run",
     "fxp_requantize",
     "pid_run",
     "seed_values",
@@ -52,6 +53,9 @@ def pid_run(
     reference_counts: npt.NDArray[np.int64],
     measured_counts: npt.NDArray[np.int64],
 ) -> dict[str, Any]: ...
+def cascade_run(
+    controller: Any, reference_m: npt.NDArray[np.float64], position_m: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]: ...
 def fxp_requantize(
     raw: npt.NDArray[np.int64], frac_in: int, fmt: Any
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]: ...

@@ -47,7 +47,7 @@ class DwellStaticFriction:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StaticFrictionMap:
     """Static friction map with true stiction (Coulomb + viscous, Stribeck), force units:
-    ``F = (1 ± a)·([Fc + (Fs − Fc)·exp(−|v_m/vs|^δ)]·sgn v + Fv·v)``. ``Fs = Fc`` gives
+    ``F = (1 ± a)·[Fc + (Fs − Fc)·exp(−|v_m/vs|^δ)]·sgn v + (1 ± a_v)·Fv·v``. ``Fs = Fc`` gives
     Coulomb + viscous. ``v_m`` is the velocity lagged by ``memory_lag_s`` when set."""
 
     static_force_n: float
@@ -56,6 +56,7 @@ class StaticFrictionMap:
     stribeck_velocity_m_per_s: float = 1e-3
     stribeck_exponent: float = 2.0
     asymmetry: float = 0.0
+    viscous_asymmetry: float = 0.0
     dwell: DwellStaticFriction | None = None
     memory_lag_s: float | None = None
 

@@ -8,14 +8,17 @@ Python use one set. Confidence tags follow DOMAIN.md: ``B`` stated in the seed p
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
 from . import _core
 from .config import (
     BallScrew,
+    CascadeController,
     DahlFriction,
     Encoder,
+    ForceDrivePlant,
     FpgaPid,
     Fxp,
     Gearhead,
@@ -27,6 +30,7 @@ from .config import (
     System,
     Table,
 )
+from .effects import Effects, StaticFrictionMap
 
 __all__ = ["SEED_PROVENANCE", "Provenance", "seed", "seed_controller", "seed_plant", "table1_gains"]
 
@@ -234,3 +238,88 @@ def with_gains(system: System, *, kp: float, ki: float, kd: float) -> System:
     if not isinstance(ctl, FpgaPid):
         raise TypeError(f"with_gains needs an FpgaPid controller, not {type(ctl).__name__}")
     return replace(system, controller=replace(ctl, kp=kp, ki=ki, kd=kd))
+
+
+#: EMPS numbers (Janot, Gautier, Brunot 2019; ../shared/data/emps/SOURCE.md): the
+#: authors' IDIM-LS identification, symmetric and asymmetric, and the logged controller.
+EMPS_VALUES: dict[str, float] = {
+    "drive_gain_n_per_v": 35.1507,
+    "mass_kg": 95.1089,
+    "viscous_n_s_per_m": 203.5034,
+    "coulomb_force_n": 20.3935,
+    "offset_n": -3.1648,
+    "kp_per_s": 160.18,
+    "kv_v_s_per_m": 243.45,
+    "count_m": 5e-8,
+    "saturation_v": 10.0,
+    "asym_mass_kg": 95.1540,
+    "viscous_pos_n_s_per_m": 166.7061,
+    "coulomb_pos_n": 20.1440,
+    "viscous_neg_n_s_per_m": 240.4236,
+    "coulomb_neg_n": 20.6277,
+}
+
+
+def emps(*, asymmetric: bool = False) -> System:
+    """The EMPS axis: a force drive (35.15 N/V) moving a lumped mass with Coulomb + viscous
+    friction (true stiction at Fc) and a constant offset force, the dSPACE cascade controller
+    in floating point (kp = 160.18 1/s, kv = 243.45 V·s/m, velocity from the two-sample
+    filtered difference, ±10 V), a 5e-8 m encoder on the motor, and the one-sample delay of
+    the authors' reference model between the controller output and the plant. Values: the
+    authors' symmetric identification, or with ``asymmetric`` their direction-dependent one
+    (levels and viscous coefficients as mean ± asymmetry; the asymmetric set has no offset).
+    """
+    v = EMPS_VALUES
+    if asymmetric:
+        fc = 0.5 * (v["coulomb_pos_n"] + v["coulomb_neg_n"])
+        fv = 0.5 * (v["viscous_pos_n_s_per_m"] + v["viscous_neg_n_s_per_m"])
+        friction = StaticFrictionMap(
+            static_force_n=fc,
+            coulomb_force_n=fc,
+            viscous_n_s_per_m=fv,
+            asymmetry=(v["coulomb_pos_n"] - fc) / fc,
+            viscous_asymmetry=(v["viscous_pos_n_s_per_m"] - fv) / fv,
+        )
+        mass, offset = v["asym_mass_kg"], 0.0
+    else:
+        friction = StaticFrictionMap(
+            static_force_n=v["coulomb_force_n"],
+            coulomb_force_n=v["coulomb_force_n"],
+            viscous_n_s_per_m=v["viscous_n_s_per_m"],
+        )
+        mass, offset = v["mass_kg"], v["offset_n"]
+    return System(
+        plant=ForceDrivePlant(
+            drive_gain_n_per_v=v["drive_gain_n_per_v"],
+            mass_kg=mass,
+            friction=friction,
+            external_force_n=offset,
+        ),
+        controller=CascadeController(
+            kp_per_s=v["kp_per_s"],
+            kv_v_s_per_m=v["kv_v_s_per_m"],
+            sample_period_s=1e-3,
+            saturation_v=v["saturation_v"],
+        ),
+        encoder=Encoder(count_m=v["count_m"], side="motor"),
+        effects=Effects(computation_delay_samples=1),
+    )
+
+
+def emps_naive() -> System:
+    """A deliberately naive EMPS model: mass and viscous friction only (no Coulomb friction,
+    no offset), for the diagnosis to start from."""
+    s = emps()
+    p = s.plant
+    assert isinstance(p, ForceDrivePlant)
+    friction = replace(p.friction, static_force_n=0.0, coulomb_force_n=0.0)
+    return replace(s, plant=replace(p, friction=friction, external_force_n=0.0))
+
+
+#: Presets by name (the diagnosis manifest's ``[model] preset``).
+PRESETS: dict[str, Callable[[], System]] = {
+    "seed": seed,
+    "emps": emps,
+    "emps_naive": emps_naive,
+    "emps_asymmetric": lambda: emps(asymmetric=True),
+}

@@ -327,6 +327,7 @@ struct PyStaticMap {
     stribeck_velocity_m_per_s: f64,
     stribeck_exponent: f64,
     asymmetry: f64,
+    viscous_asymmetry: f64,
     dwell: Option<PyDwell>,
     memory_lag_s: Option<f64>,
 }
@@ -340,6 +341,7 @@ impl From<&PyStaticMap> for StaticMap {
             stribeck_velocity_m_per_s: m.stribeck_velocity_m_per_s,
             stribeck_exponent: m.stribeck_exponent,
             asymmetry: m.asymmetry,
+            viscous_asymmetry: m.viscous_asymmetry,
             dwell: m.dwell.as_ref().map(DwellStatic::from),
             memory_lag_s: m.memory_lag_s,
         }
@@ -927,6 +929,38 @@ fn pid_run<'py>(
     Ok(d)
 }
 
+/// Run the cascade controller alone on given reference and measured positions (m).
+#[pyfunction]
+fn cascade_run<'py>(
+    py: Python<'py>,
+    controller: PyCascade,
+    reference_m: PyReadonlyArray1<'py, f64>,
+    position_m: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = CascadeConfig {
+        kp_per_s: controller.kp_per_s,
+        kv_v_s_per_m: controller.kv_v_s_per_m,
+        sample_period_s: controller.sample_period_s,
+        saturation_v: controller.saturation_v,
+    };
+    let mut c = crate::control::Cascade::new(cfg).map_err(config_err)?;
+    let r = reference_m.as_array();
+    let y = position_m.as_array();
+    if r.len() != y.len() {
+        return Err(config_err(CoreConfigError::new(
+            "position_m (length)",
+            y.len(),
+            format!("the length of reference_m = {}", r.len()),
+        )));
+    }
+    let u: Vec<f64> = r
+        .iter()
+        .zip(y.iter())
+        .map(|(a, b)| c.step(*a, *b).0)
+        .collect();
+    Ok(u.into_pyarray(py).into_any())
+}
+
 /// Requantise raw integers with `frac_in` fraction bits into `fmt`; returns (raw, overflow).
 #[pyfunction]
 fn fxp_requantize<'py>(
@@ -1138,6 +1172,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(friction_response, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_open_loop, m)?)?;
     m.add_function(wrap_pyfunction!(pid_run, m)?)?;
+    m.add_function(wrap_pyfunction!(cascade_run, m)?)?;
     m.add_function(wrap_pyfunction!(fxp_requantize, m)?)?;
     m.add_function(wrap_pyfunction!(seed_values, m)?)?;
     m.add_function(wrap_pyfunction!(validate_plant, m)?)?;

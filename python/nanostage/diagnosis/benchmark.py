@@ -79,6 +79,8 @@ DESIGN: tuple[tuple[tuple[float, ...], float, float, str], ...] = (
     ((-200e-6, 200e-6), 19.6e-3, 0.5, "validate"),
     ((100e-6,), 5.0e-3, 0.02, "train"),
     ((100e-6,), 5.0e-3, 0.02, "validate"),
+    ((300e-9, 300e-9, 300e-9), 22.3e-3, 1.0, "train"),
+    ((-300e-9, -300e-9, -300e-9), 23.9e-3, 1.0, "validate"),
 )
 MOVE_S = 0.3
 
@@ -91,8 +93,8 @@ def _hidden(name: str, rng: np.random.Generator, base: System) -> tuple[System, 
         fx = dc.replace(fx, motor_friction=FrictionModifiers(asymmetry=a))
         info["asymmetry"] = a
     elif name == "dwell_static_friction":
-        rise = float(rng.uniform(0.5, 1.5))  # relative to the static force
-        tau = float(rng.uniform(0.05, 0.3))
+        rise = float(rng.uniform(2.0, 5.0))  # relative to the motor-side static force
+        tau = float(rng.uniform(0.05, 0.5))
         p = base.plant
         assert isinstance(p, Plant)
         eta = p.gearhead.efficiency * p.screw.efficiency

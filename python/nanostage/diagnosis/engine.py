@@ -22,6 +22,7 @@ Significance (documented in docs/diagnosis.md)
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import os
@@ -119,10 +120,10 @@ class FitProblem:
             self.executor.submit(simulated_mean_reading, self.adapt(system, e), e)
             for e in experiments
         ]
-        out = []
-        for e, f in zip(experiments, futures, strict=True):
-            out.append(np.asarray(e.position_m, dtype=np.float64) - f.result())
-        return out
+        return [
+            gap_residual(e.position_m, f.result(), e.reference_m)
+            for e, f in zip(experiments, futures, strict=True)
+        ]
 
     def _vector(self, u: FloatArray) -> FloatArray:
         values = [p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, u, strict=True)]
@@ -136,8 +137,10 @@ class FitProblem:
         # 1/√n so that it contributes its mean square.
         return np.concatenate([r / (self.scale_m * math.sqrt(len(r))) for r in res])
 
-    def fit(self, n_starts: int, settings: DiagnosisSettings, seed: int) -> Fit:
-        """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates."""
+    def fit(self, n_starts: int, settings: DiagnosisSettings, seed: int, n_warm: int = 0) -> Fit:
+        """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates. The
+        first start is every parameter's ``initial``; the others draw the parameters after
+        the first ``n_warm`` (which keep their initial, warm values) by Latin hypercube."""
         k = len(self.params)
         self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
         if k == 0:
@@ -150,10 +153,15 @@ class FitProblem:
                 n_evaluations=1,
                 system=system,
             )
-        starts = [np.array([1.0 + p.to_unit(p.initial) for _, p in self.params])]
+        first = np.array([1.0 + p.to_unit(p.initial) for _, p in self.params])
+        starts = [first]
+        n_draw = k - n_warm if k > n_warm else k
         if n_starts > 1:
-            lhs = qmc.LatinHypercube(d=k, seed=seed).random(n_starts - 1)
-            starts += [1.0 + row for row in lhs]
+            lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - 1)
+            for row in lhs:
+                u = first.copy()
+                u[k - n_draw :] = 1.0 + row
+                starts.append(u)
         best: Any = None
         for u0 in starts:
             sol = least_squares(
@@ -206,6 +214,46 @@ def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
         )
         var = float(cov[i, i])
         out.append(abs(dv) * math.sqrt(var) if var > 0 and math.isfinite(var) else math.inf)
+    return out
+
+
+def move_intervals(reference_m: npt.ArrayLike) -> list[tuple[int, int]]:
+    """(start, stop) sample intervals from each reference change to the next (or the end)."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    starts = [int(k) + 1 for k in np.flatnonzero(np.diff(ref) != 0)]
+    # A ramp changes every sample: keep only starts after a rest of at least 2 samples.
+    kept = [k for i, k in enumerate(starts) if i == 0 or k - starts[i - 1] > 2]
+    return list(zip(kept, [*kept[1:], len(ref)], strict=True))
+
+
+def gap_residual(
+    measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike, reference_m: npt.ArrayLike
+) -> FloatArray:
+    """The gap of one experiment: measured − simulated, sample by sample, except in the
+    second half of each move interval (holds, limit cycles, slow creep), where the *sorted*
+    values are compared (the distribution of positions: the mean and the amplitude of a
+    limit cycle, but not its phase, which no model can reproduce sample by sample)."""
+    m = np.asarray(measured_m, dtype=np.float64)
+    s = np.asarray(simulated_m, dtype=np.float64)
+    r = m - s
+    for a, b in move_intervals(reference_m):
+        h = a + (b - a) // 2
+        if b - h > 1:
+            order = np.argsort(m[h:b], kind="stable")
+            aligned = np.empty(b - h)
+            aligned[order] = np.sort(s[h:b])
+            r[h:b] = m[h:b] - aligned
+    return r
+
+
+def align_holds(
+    measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike, reference_m: npt.ArrayLike
+) -> FloatArray:
+    """The simulated signal with the samples of each hold window re-ordered to rank-match
+    the measured ones, so that ``measured − aligned`` is :func:`gap_residual`."""
+    out: FloatArray = np.asarray(measured_m, dtype=np.float64) - gap_residual(
+        measured_m, simulated_m, reference_m
+    )
     return out
 
 
@@ -314,6 +362,7 @@ class CandidateResult:
                 else {}
             ),
             "train_rms_m": self.fit.train_rms_m,
+            "validation_rms_by_experiment_m": [float(math.sqrt(m)) for m in self.validation_ms],
             "why": self.reasons,
         }
 
@@ -343,6 +392,8 @@ class _Ctx:
     st: DiagnosisSettings
     pool: Executor
     adapt: Adapt
+    #: Warm start of the free nominal parameters per fold (updated after each round).
+    warm: list[dict[str, float]] = field(default_factory=list)
 
     @property
     def n_validation(self) -> int:
@@ -372,15 +423,20 @@ class _Ctx:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds) and the validation residuals per fold."""
         fits, ms, residuals = [], [], []
-        for train, validate in self.folds:
+        for i, (train, validate) in enumerate(self.folds):
+            warm = self.warm[i] if i < len(self.warm) else {}
+            free = [
+                (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
+                for n, p in self.free
+            ]
             prob = FitProblem(
-                list(self.free) + list(params),
+                free + list(params),
                 self.builder(base, apply_extra),
                 train,
                 self.pool,
                 self.adapt,
             )
-            f = prob.fit(n_starts, self.st, seed)
+            f = prob.fit(n_starts, self.st, seed, n_warm=len(free) if warm else 0)
             res = prob.residuals(f.system, validate)
             fits.append(f)
             residuals.append(res)
@@ -428,6 +484,7 @@ def diagnose_experiments(
         nominal_fits, base_ms, _ = ctx.fit_and_validate(
             nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
         )
+        ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
         selected: list[str] = []
         rounds: list[list[CandidateResult]] = []
         current = nominal
@@ -469,6 +526,7 @@ def diagnose_experiments(
             selected.append(best.effect)
             current = _with_effect(current, best, cand_now)
             current_fits = best.fold_fits
+            ctx.warm[:] = [_free_values(f, free) for f in best.fold_fits]
             current_ms = best.validation_ms
     return {
         "nominal": nominal_fits[0],
@@ -483,6 +541,10 @@ def diagnose_experiments(
         "skipped": skipped,
         "timing_s": time.perf_counter() - t_start,
     }
+
+
+def _free_values(fit: Fit, free: Sequence[tuple[str, Param]]) -> dict[str, float]:
+    return {n: fit.values[n] for n, _ in free if n in fit.values}
 
 
 def _with_effect(current: System, best: CandidateResult, cands: Sequence[Candidate]) -> System:

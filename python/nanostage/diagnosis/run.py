@@ -35,6 +35,7 @@ from .engine import (
     CandidateResult,
     DiagnosisSettings,
     Fit,
+    align_holds,
     diagnose_experiments,
     simulated_mean_reading,
 )
@@ -262,7 +263,11 @@ def diagnose(
     written = None
     if out_dir is not None:
         val = _validation_order(folds)
-        sims = _simulated(out["final_fits"], folds, adapt)
+        sims = [
+            simulated_mean_reading(adapt(f.system, e), e)
+            for f, (_, v) in zip(out["final_fits"], folds, strict=True)
+            for e in v
+        ]
         gap_exps = [
             {
                 "name": e.name,
@@ -296,9 +301,14 @@ def _simulated(
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
     adapt: Any,
 ) -> list[np.ndarray]:
+    """Simulated mean readings of the validation experiments, hold windows rank-aligned to
+    the measurement (so that measured − simulated is the engine's gap residual)."""
     out = []
     for f, (_, v) in zip(fits, folds, strict=True):
-        out += [simulated_mean_reading(adapt(f.system, e), e) for e in v]
+        out += [
+            align_holds(e.position_m, simulated_mean_reading(adapt(f.system, e), e), e.reference_m)
+            for e in v
+        ]
     return out
 
 

@@ -107,8 +107,10 @@ impl StaticMap {
             (-q.powf(self.stribeck_exponent)).exp()
         };
         self.dir(d)
-            * (s * (self.coulomb_force_n + (self.static_force_n - self.coulomb_force_n) * e) * d
-                + self.viscous_n_s_per_m * v)
+            * s
+            * (self.coulomb_force_n + (self.static_force_n - self.coulomb_force_n) * e)
+            * d
+            + (1.0 + self.viscous_asymmetry * d) * self.viscous_n_s_per_m * v
     }
 
     /// Largest force the map holds at rest, pushing in direction `d`, after a dwell `t_d`.

@@ -30,8 +30,8 @@ pub struct DwellStatic {
 }
 
 /// A static friction map with true stiction, at the table in force units:
-/// `F(v) = [Fc + (Fs − Fc)·exp(−|v_m/vs|^δ)]·sgn v + Fv·v`, every level scaled by `(1 + a)`
-/// for v > 0 and `(1 − a)` for v < 0 (asymmetry `a`). `v_m` is the velocity itself or, with
+/// `F(v) = (1 ± a)·[Fc + (Fs − Fc)·exp(−|v_m/vs|^δ)]·sgn v + (1 ± a_v)·Fv·v` (upper signs for
+/// v > 0; asymmetries `a` of the levels and `a_v` of the viscous term). `v_m` is the velocity itself or, with
 /// frictional memory, the velocity lagged by a first-order filter of time constant τ_L.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StaticMap {
@@ -45,8 +45,10 @@ pub struct StaticMap {
     pub stribeck_velocity_m_per_s: f64,
     /// Stribeck exponent δ, in [0.5, 4].
     pub stribeck_exponent: f64,
-    /// Direction asymmetry a, in [−0.9, 0.9] (0: symmetric).
+    /// Direction asymmetry a of the levels Fs, Fc, in [−0.9, 0.9] (0: symmetric).
     pub asymmetry: f64,
+    /// Direction asymmetry of the viscous coefficient, in [−0.9, 0.9]: `Fv·(1 ± a_v)`.
+    pub viscous_asymmetry: f64,
     /// Rising static friction with dwell time (off: `None`).
     pub dwell: Option<DwellStatic>,
     /// Frictional memory: time constant τ_L of the lag of the Stribeck term behind the
@@ -231,6 +233,7 @@ impl StaticMap {
         )?;
         check_range("stribeck_exponent", self.stribeck_exponent, 0.5, 4.0)?;
         check_range("asymmetry", self.asymmetry, -0.9, 0.9)?;
+        check_range("viscous_asymmetry", self.viscous_asymmetry, -0.9, 0.9)?;
         if let Some(d) = &self.dwell {
             d.validate().map_err(|e| e.within("dwell"))?;
         }
@@ -253,6 +256,7 @@ impl StaticMap {
             stribeck_velocity_m_per_s: f.stribeck_velocity_rad_per_s * r,
             stribeck_exponent: f.stribeck_exponent,
             asymmetry: 0.0,
+            viscous_asymmetry: 0.0,
             dwell: None,
             memory_lag_s: None,
         }
