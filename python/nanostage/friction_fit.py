@@ -718,8 +718,12 @@ class _Problem:
         r = self.simulate(u)
         return np.full(self.n_fit, _PENALTY) if r is None else r
 
-    def jacobian(self, u: FloatArray, step: float, central: bool) -> FloatArray:
-        r0 = self.simulate(u) if not central else None
+    def jacobian(
+        self, u: FloatArray, step: float, central: bool, base: FloatArray | None = None
+    ) -> FloatArray:
+        """Finite-difference Jacobian in the unit box (central where the box allows);
+        ``base`` is the residual at ``u`` when already known."""
+        r0 = base if base is not None or central else self.simulate(u)
         jac = np.zeros((self.n_fit, u.size))
         for j in range(u.size):
             up, um = u.copy(), u.copy()
@@ -747,7 +751,7 @@ def _initial_guess(prob: _Problem, lo: FloatArray, hi: FloatArray) -> FloatArray
     d = prob.data
     v = d.velocity_m_per_s[: prob.n_fit]
     moving = np.abs(v) > 0.1 * np.max(np.abs(v))
-    fc, fv = 0.5 * (lo[0] + hi[0]), 0.0
+    fc, fv = 0.5 * float(np.max(np.abs(prob.f_fit))), 0.0
     if np.count_nonzero(moving) >= 2:
         a = np.column_stack([np.sign(v[moving]), v[moving]])
         sol = np.linalg.lstsq(a, prob.f_fit[moving], rcond=None)[0]
@@ -785,10 +789,28 @@ def _initial_guess(prob: _Problem, lo: FloatArray, hi: FloatArray) -> FloatArray
 def _run_start(
     prob: _Problem, index: int, u0: FloatArray, max_nfev: int
 ) -> tuple[StartResult, FloatArray]:
+    # The Jacobian is requested at the point whose residual was just computed: keep it
+    # (per start, so that concurrent starts share nothing mutable).
+    last: list[tuple[FloatArray, FloatArray | None]] = []
+
+    def sim(u: FloatArray) -> FloatArray | None:
+        if last and np.array_equal(last[0][0], u):
+            return last[0][1]
+        r = prob.simulate(u)
+        last[:] = [(u.copy(), r)]
+        return r
+
+    def fun(u: FloatArray) -> FloatArray:
+        r = sim(u)
+        return np.full(prob.n_fit, _PENALTY) if r is None else r
+
+    def jac(u: FloatArray) -> FloatArray:
+        return prob.jacobian(u, _STEP_OPT, central=False, base=sim(u))
+
     sol = least_squares(
-        prob.residual,
+        fun,
         u0,
-        jac=lambda u: prob.jacobian(u, _STEP_OPT, central=False),
+        jac=jac,
         bounds=(np.zeros(u0.size), np.ones(u0.size)),
         method="trf",
         x_scale=1.0,
@@ -844,7 +866,7 @@ def _covariance(
         cov_f[bad, :] = np.nan
         cov_f[:, bad] = np.nan
         cov_int[np.ix_(free, free)] = cov_f
-        se_f = 2 * se_u * w
+        se_f = se_u * w
         se_f[bad] = np.inf
         se_int[free] = se_f
         for k, j in enumerate(free):
@@ -942,10 +964,15 @@ def fit_friction(
     else:
         with ThreadPoolExecutor(max_workers=n_workers) as pool:
             futures = {pool.submit(_run_start, prob, i, u0, nfev): i for i, u0 in enumerate(starts)}
-            for done, fut in enumerate(as_completed(futures), start=1):
-                outcomes[futures[fut]] = fut.result()
-                if progress is not None:
-                    progress(done, n_starts)
+            try:
+                for done, fut in enumerate(as_completed(futures), start=1):
+                    outcomes[futures[fut]] = fut.result()
+                    if progress is not None:
+                        progress(done, n_starts)
+            except BaseException:
+                # A failing callback or an interrupt: drop the starts not yet running.
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
     results = [o for o in outcomes if o is not None]
     best_i = min(range(len(results)), key=lambda i: (results[i][0].cost, i))
     best, u_best = results[best_i]

@@ -86,7 +86,15 @@ def _fx(system: System, **changes: object) -> System:
 
 
 def _table_levels(system: System) -> tuple[float, float]:
-    """(Coulomb, static) force level of the table-side friction of the nominal model, N."""
+    """(Coulomb, static) force level of the table-side friction of the nominal model, N;
+    10 N for a model without Coulomb friction (a scale for the candidates' bounds)."""
+    fc, fs = _raw_table_levels(system)
+    if fc <= 0.0:
+        return 10.0, max(fs, 10.0)
+    return fc, fs
+
+
+def _raw_table_levels(system: System) -> tuple[float, float]:
     tf = system.effects.table_friction
     if isinstance(tf, StaticFrictionMap | LuGre | Gms):
         return tf.coulomb_force_n, tf.static_force_n
@@ -109,13 +117,20 @@ def _static_side(system: System) -> str:
 
 
 def _modify_static(system: System, **changes: object) -> System:
-    """Apply modifiers to the nominal static map (motor map of the seed, table map of a
-    force drive)."""
+    """Apply modifiers to the model's static map where stiction acts: a table map set in the
+    effects (e.g. by a selected friction-model candidate), else the motor map of the seed or
+    the friction map of a force drive."""
+    tf = system.effects.table_friction
+    if isinstance(tf, StaticFrictionMap):
+        return _fx(system, table_friction=replace(tf, **changes))  # type: ignore[arg-type]
     p = system.plant
     if isinstance(p, Plant):
+        if "viscous_asymmetry" in changes:
+            changes = {k: v for k, v in changes.items() if k != "viscous_asymmetry"}
         mods = replace(system.effects.motor_friction, **changes)  # type: ignore[arg-type]
         return _fx(system, motor_friction=mods)
-    return replace(system, plant=replace(p, friction=replace(p.friction, **changes)))  # type: ignore[arg-type]
+    friction = replace(p.friction, **changes)  # type: ignore[arg-type]
+    return replace(system, plant=replace(p, friction=friction))
 
 
 def _lead_m(system: System) -> float:
@@ -198,6 +213,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
     def dahl(sys: System) -> Candidate | str:
         if isinstance(sys.plant, Plant) and sys.effects.table_friction is None:
             return "the nominal model already uses Dahl friction on the table"
+        if isinstance(sys.plant, ForceDrivePlant):
+            return "Dahl on a force drive is not offered; LuGre with σ1 = 0 and Fs = Fc covers it"
         fc, _ = _table_levels(sys)
         k = _presliding_stiffness(sys)
         return Candidate(
@@ -303,12 +320,27 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         )
 
     def asymmetric(sys: System) -> Candidate | str:
+        signature = (
+            "different friction in + and − moves: direction-dependent slew speed, "
+            "overshoot and final error"
+        )
+        if isinstance(sys.plant, ForceDrivePlant) or isinstance(
+            sys.effects.table_friction, StaticFrictionMap
+        ):
+            return Candidate(
+                name="asymmetric_friction",
+                params=(
+                    Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
+                    Param(name="viscous_asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
+                ),
+                apply=lambda s, v: _modify_static(s, asymmetry=v[0], viscous_asymmetry=v[1]),
+                signature=signature,
+            )
         return Candidate(
             name="asymmetric_friction",
             params=(Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),),
             apply=lambda s, v: _modify_static(s, asymmetry=v[0]),
-            signature="different friction in + and − moves: direction-dependent slew speed, "
-            "overshoot and final error",
+            signature=signature,
         )
 
     def dwell(sys: System) -> Candidate | str:
@@ -410,8 +442,50 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         )
 
     def compliance(sys: System) -> Candidate | str:
-        if isinstance(sys.plant, ForceDrivePlant) and sys.plant.drive_mass_kg <= 0:
-            return "the force-drive plant has no drive-side mass (set plant.drive_mass_kg)"
+        signature = (
+            "a drive-train resonance: ringing at a frequency set by the stiffness and the "
+            "two masses"
+        )
+        p = sys.plant
+        if isinstance(p, ForceDrivePlant):
+            total = p.mass_kg + p.drive_mass_kg
+
+            def apply_force(s: System, v: Sequence[float]) -> System:
+                q = s.plant
+                assert isinstance(q, ForceDrivePlant)
+                m_all = q.mass_kg + q.drive_mass_kg
+                plant = replace(q, drive_mass_kg=v[2] * m_all, mass_kg=(1.0 - v[2]) * m_all)
+                return _fx(
+                    replace(s, plant=plant),
+                    compliance=DriveCompliance(stiffness_n_per_m=v[0], damping_n_s_per_m=v[1]),
+                )
+
+            return Candidate(
+                name="drive_compliance",
+                params=(
+                    Param(
+                        name="stiffness_n_per_m",
+                        unit="N/m",
+                        lower=1e4,
+                        upper=1e9,
+                        initial=1e6,
+                        log=True,
+                    ),
+                    Param(
+                        name="damping_n_s_per_m",
+                        unit="N·s/m",
+                        lower=1.0,
+                        upper=1e5,
+                        initial=1e3,
+                        log=True,
+                    ),
+                    Param(
+                        name="drive_mass_fraction", unit="-", lower=0.05, upper=0.95, initial=0.3
+                    ),
+                ),
+                apply=apply_force,
+                signature=signature + f" (total mass {total:.4g} kg split between the sides)",
+            )
         return Candidate(
             name="drive_compliance",
             params=(
@@ -435,8 +509,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             apply=lambda s, v: _fx(
                 s, compliance=DriveCompliance(stiffness_n_per_m=v[0], damping_n_s_per_m=v[1])
             ),
-            signature="a drive-train resonance: ringing at a frequency set by the stiffness "
-            "and the two masses",
+            signature=signature,
         )
 
     def inductance(sys: System) -> Candidate | str:
@@ -532,9 +605,9 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             return Candidate(
                 name=name,
                 params=(),
-                apply=lambda s, v: _fx(s, **{field: int(v[0])}),
+                apply=lambda s, v: _fx(s, **{field: getattr(s.effects, field) + int(v[0])}),
                 signature=what,
-                discrete=(1, 2, 3),
+                discrete=(1, 2, 3),  # samples added to the model's own delay
             )
 
         return make

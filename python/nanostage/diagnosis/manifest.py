@@ -806,7 +806,11 @@ def load_manifest(path: str | Path) -> Manifest:
     if "model" not in data:
         raise ctx.err("model", 'missing [model] table (at least: preset = "seed")')
     model, system = _parse_model(ctx, data["model"], p.parent)
-    default_kind = _PRESET_CONTROLLER_KIND.get(model.preset, "fpga_pid")
+    have = {f.name for f in dataclasses.fields(system.controller)}
+    default_kind = next(
+        (k for k, g in CONTROLLER_GAINS.items() if set(g) <= have),
+        _PRESET_CONTROLLER_KIND.get(model.preset, "fpga_pid"),
+    )
     controller = _parse_controller(
         ctx, data.get("controller", {}), "controller", None, default_kind, system
     )

@@ -212,7 +212,7 @@ def diagnose(
     st = settings or DiagnosisSettings(seed=m.diagnosis.seed)
     for name, e in by_name.items():
         t = nominal.sample_period_s
-        if abs(e.sample_period_s - t) > 1e-6 * t:
+        if abs(e.sample_period_s - t) > 1e-3 * t:
             raise ValueError(
                 f"{m.path}: experiment {name!r} ({e.source}) is sampled every "
                 f"{e.sample_period_s:g} s but the controller runs every {t:g} s"
