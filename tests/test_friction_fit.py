@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from nanostage import ConfigError, DahlFriction
-from nanostage.effects import LuGre, StaticFrictionMap
+from nanostage.effects import Gms, LuGre, StaticFrictionMap
 from nanostage.friction import FrictionModel, friction_response
 from nanostage.friction_fit import (
     MODELS,
@@ -468,3 +468,32 @@ def test_too_few_samples_and_no_excitation() -> None:
         compare_models(d, ("dahl", "dahl"))
     with pytest.raises(ConfigError, match="rule"):
         compare_models(d, ("dahl",), rule="aic")  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_recovers_gms3() -> None:
+    """GMS truth with three elements of distinct slip lengths (0.1, 0.5, 2.7 µm), all inside
+    the 3 µm presliding sinusoid. Elements are interchangeable: compare sorted by stiffness."""
+    truth = Gms(
+        stiffness_n_per_m=(3e7, 6e6, 1.5e6),
+        weights=(0.3, 0.3, 0.4),
+        coulomb_force_n=FC_N,
+        static_force_n=15.0,
+        stribeck_velocity_m_per_s=1e-3,
+        viscous_n_s_per_m=300.0,
+    )
+    f = friction_response(truth, T, X, V)
+    data = FrictionData(T, X, V, f + np.random.default_rng(1).normal(0.0, NOISE_N, f.size))
+    fit = fit_friction(data, "gms3", n_starts=4, workers=2)
+    assert fit.identifiable and fit.success
+    order = np.argsort([-fit.parameters[f"stiffness_n_per_m[{i}]"] for i in range(3)])
+    for rank, i in enumerate(order):
+        for name, true in (
+            (f"stiffness_n_per_m[{i}]", truth.stiffness_n_per_m[rank]),
+            (f"slip_force_n[{i}]", truth.weights[rank] * FC_N),
+        ):
+            est, se = fit.parameters[name], fit.std_errors[name]
+            assert abs(est - true) < 4 * se and abs(est - true) < 0.1 * true, (name, est, true, se)
+    for name, true in (("static_excess_n", 5.0), ("stribeck_velocity_m_per_s", 1e-3)):
+        assert abs(fit.parameters[name] - true) < 4 * fit.std_errors[name], name
+    assert fit.rms_holdout_n == pytest.approx(NOISE_N, rel=0.15)

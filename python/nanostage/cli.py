@@ -58,6 +58,41 @@ def _benchmark(args: argparse.Namespace) -> int:
     return 0
 
 
+def _predict(args: argparse.Namespace) -> int:
+    from .predict import PredictError, predict
+
+    try:
+        s = predict(args.manifest, args.out)
+    except PredictError as exc:
+        print(f"nanostage predict: {exc}", file=sys.stderr)
+        return 2
+    for name, e in s["experiments"].items():
+        extra = (
+            f", position error {e['position_relative_error']:.3%} against the measurement"
+            if "position_relative_error" in e
+            else ""
+        )
+        print(f"{name}: {e['samples']} samples → {e['file']}{extra}")
+    return 0
+
+
+def _emps(args: argparse.Namespace) -> int:
+    from .emps_study import emps_study
+
+    r = emps_study(args.out, mat_path=args.mat)
+    rows = [
+        ("authors' reported (their simulation)", r["authors_reference"]),
+        ("authors' symmetric model, nanostage loop", r["authors_symmetric"]),
+        ("authors' asymmetric model, nanostage loop", r["authors_asymmetric"]),
+        ("output-error fit", r["output_error"]["yardstick"]),
+    ]
+    print("relative error ‖measured − simulated‖/‖measured‖  position  velocity  force")
+    for label, y in rows:
+        print(f"{label:44s} {y['position']:8.4%} {y['velocity']:8.3%} {y['force']:7.2%}")
+    print(f"wrote {args.out}/emps.json")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``nanostage`` command."""
     parser = argparse.ArgumentParser(prog="nanostage", description=__doc__)
@@ -83,6 +118,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     bm.add_argument("--seed", type=int, default=1, help="seed of the case draws (default 1)")
     bm.add_argument("--quiet", action="store_true", help="no per-case lines")
     bm.set_defaults(func=_benchmark)
+    pr = sub.add_parser("predict", help="simulate an identified model for given inputs")
+    pr.add_argument("manifest", help="TOML manifest (see nanostage.predict)")
+    pr.add_argument("--out", default="prediction", help="output directory")
+    pr.set_defaults(func=_predict)
+    em = sub.add_parser("emps", help="the EMPS real-data study (yardstick, identification)")
+    em.add_argument("--out", default="emps", help="output directory")
+    em.add_argument("--mat", default=None, help="DATA_EMPS.mat (default: ../shared)")
+    em.set_defaults(func=_emps)
     args = parser.parse_args(argv)
     return int(args.func(args))
 
