@@ -1,0 +1,164 @@
+"""The diagnosis engine: the gap metric, the noise floor, significance, and small end-to-end
+runs on synthetic data with a known hidden effect (the full blind benchmark is
+``nanostage diagnose-benchmark``; see README)."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import nanostage as ns
+from nanostage.diagnosis.candidates import CANDIDATES, NOT_CANDIDATES, applicable_candidates
+from nanostage.diagnosis.engine import (
+    DiagnosisSettings,
+    gap_residual,
+    hold_intervals,
+    noise_floor_m,
+)
+from nanostage.diagnosis.run import diagnose
+from nanostage.diagnosis.traces import write_trace_csv
+from nanostage.effect_names import EFFECT_NAMES
+from nanostage.effects import Effects, FrictionModifiers, StochasticFriction
+from nanostage.experiment import Experiment
+
+
+def test_every_effect_name_is_a_candidate_or_explained() -> None:
+    assert set(CANDIDATES) | set(NOT_CANDIDATES) == set(EFFECT_NAMES)
+    cands, skipped = applicable_candidates(ns.presets.seed())
+    names = {c.name for c in cands}
+    assert "dahl" in skipped and "backlash" in names
+    cands, skipped = applicable_candidates(ns.presets.emps())
+    assert "backlash" in skipped and "a force drive has no gearhead" in skipped["backlash"]
+    with pytest.raises(ValueError, match="unknown effect 'nope'"):
+        applicable_candidates(ns.presets.seed(), ["nope"])
+
+
+def test_candidate_parameters_round_trip_and_stay_valid() -> None:
+    """Every candidate's parameters map to [0, 1] and back, and its system builds (the Rust
+    core validates) at the bounds and at the start values."""
+    for system in (ns.presets.seed(), ns.presets.emps(), ns.presets.emps_naive()):
+        cands, _ = applicable_candidates(system)
+        for c in cands:
+            for p in c.params:
+                for v in (p.lower, p.initial, p.upper):
+                    assert p.from_unit(p.to_unit(v)) == pytest.approx(v, rel=1e-9, abs=1e-15)
+            for u in (0.0, 0.5, 1.0):
+                vals = [p.from_unit(u) for p in c.params] or [1]
+                c.apply(system, vals)
+
+
+def test_hold_intervals_and_phase_insensitive_gap() -> None:
+    ref = np.zeros(400)
+    ref[50:] = 1e-4
+    assert hold_intervals(ref) == [(0, 50), (50, 400)]
+    t = np.arange(400)
+    # A limit cycle around the target, measured and simulated with different phases.
+    meas = np.where(t >= 80, 1e-4 + 2e-6 * np.sin(2 * np.pi * t / 40), t / 80 * 1e-4)
+    sim = np.where(t >= 80, 1e-4 + 2e-6 * np.sin(2 * np.pi * t / 40 + 1.3), t / 80 * 1e-4)
+    r = gap_residual(meas, sim, ref)
+    assert np.sqrt(np.mean((meas - sim)[200:] ** 2)) > 1e-6  # sample by sample: large
+    assert np.max(np.abs(r[200:])) < 1e-7  # as distributions: equal
+    # A different amplitude is still seen.
+    r2 = gap_residual(meas, np.where(t >= 80, 1e-4 + 1e-6 * np.sin(2 * np.pi * t / 40), sim), ref)
+    assert np.sqrt(np.mean(r2[200:] ** 2)) > 5e-7
+
+
+def test_noise_floor_sees_quantisation_noise_and_repeats() -> None:
+    q = 1e-7
+    ref = np.zeros(500)
+    ref[100:] = 1e-4
+    t = np.arange(500) * 1e-3
+    rng = np.random.default_rng(0)
+    clean = Experiment(name="a", time_s=t, reference_m=ref, position_m=np.floor(ref / q) * q)
+    assert noise_floor_m([clean], q) == pytest.approx(q / np.sqrt(12))
+    noisy = [
+        Experiment(
+            name=f"n{i}",
+            time_s=t,
+            reference_m=ref,
+            position_m=ref + rng.normal(0, 2e-7, 500),
+        )
+        for i in range(2)
+    ]
+    floor = noise_floor_m(noisy, q)
+    assert 2e-7 < floor < 4e-7  # white noise 2e-7, repeats differ by √2·2e-7
+
+
+def _case(tmp_path: Path, effects: Effects, seed: int) -> Path:
+    """Four seed-axis experiments (both directions), two train, two validate."""
+    truth = dc.replace(
+        ns.presets.seed(1e-3),
+        effects=dc.replace(effects, stochastic=StochasticFriction(level_spread=0.003)),
+    )
+    lines = [
+        '[model]\npreset = "seed"\nfree = ["plant.dahl.coulomb_force_n"]\n',
+        "[diagnosis]",
+        'candidates = ["asymmetric_friction", "offset_force", "lead_periodic_friction"]',
+        f"seed = {seed}\n",
+    ]
+    design = [(5e-4, 1e-3, "train"), (-5e-4, 4e-3, "train"), (5e-4, 7e-3, "validate")]
+    design += [(-5e-4, 9.5e-3, "validate")]
+    for i, (step, x0, role) in enumerate(design):
+        ref = np.full(330, x0)
+        ref[30:] = x0 + step
+        g = ns.presets.table1_gains(abs(step))
+        s = ns.presets.with_gains(truth, kp=g[0], ki=g[1], kd=g[2])
+        tr = ns.simulate(s, ref, seed=seed * 10 + i)
+        e = Experiment(
+            name=f"e{i}", time_s=tr.time_s, reference_m=ref, position_m=tr.encoder_position_m
+        )
+        write_trace_csv(e, tmp_path / f"e{i}.csv")
+        lines += [
+            "[[experiment]]",
+            f'name = "e{i}"\nfile = "e{i}.csv"\nrole = "{role}"',
+            f"controller = {{ kp = {g[0]}, ki = {g[1]}, kd = {g[2]} }}\n",
+        ]
+    (tmp_path / "m.toml").write_text("\n".join(lines))
+    return tmp_path / "m.toml"
+
+
+FAST = DiagnosisSettings(n_starts_nominal=1, n_starts_candidate=1, forward_rounds=2)
+
+
+def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    d = diagnose(m, tmp_path / "out", settings=FAST, progress=False, figures=False)
+    r = d.report
+    assert r["selected"] == ["asymmetric_friction"]
+    best = r["candidates"][0]
+    assert best["effect"] == "asymmetric_friction" and best["significant"]
+    assert best["shrink"] > 0.5
+    assert abs(best["parameters"]["asymmetric_friction.asymmetry"]["value"] - 0.3) < 0.08
+    assert r["gap_after"]["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
+    on_disk = json.loads((tmp_path / "out" / "report.json").read_text())
+    for key in ("gap_before", "candidates", "selected", "gap_after"):
+        assert key in on_disk
+    assert {"total_rms_m", "by_segment"} <= set(on_disk["gap_before"])
+    assert "asymmetric_friction" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None:
+    m = _case(tmp_path, Effects(), seed=4)
+    d = diagnose(m, None, settings=FAST, progress=False)
+    assert d.report["selected"] == []
+    assert all(not c["significant"] for c in d.report["candidates"])
+
+
+def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:
+    m = _case(tmp_path, Effects(), seed=5)
+    m.write_text(m.read_text().replace('"offset_force"', '"offset_farce"'))
+    p = subprocess.run(
+        [sys.executable, "-m", "nanostage.cli", "diagnose", str(m), "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert p.returncode == 2
+    assert "offset_farce" in p.stderr and "m.toml" in p.stderr
+    assert not (tmp_path / "o").exists()
