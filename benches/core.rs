@@ -3,10 +3,11 @@
 //! a measurement): `latency_ticks` of the seed schedule.
 use criterion::{criterion_group, criterion_main, Criterion};
 use nanostage::control::Pid;
+use nanostage::drive::{Gms, Link, TableFriction};
 use nanostage::integrate::Rodas4;
 use nanostage::model::{Axis, Plant};
 use nanostage::presets::{seed_closed_loop, seed_pid};
-use nanostage::sim::run_closed_loop;
+use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
 use std::hint::black_box;
 
 fn controller_update(c: &mut Criterion) {
@@ -50,5 +51,62 @@ fn closed_loop_trial(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, controller_update, plant_period, closed_loop_trial);
+/// The same 1-s trial with the effect library's heavy components on (issue 3 speed goal:
+/// at most 3× the plain seed trial): GMS with 6 elements on the table, gearhead backlash
+/// (20 µm) and a two-mass drive train; and each alone, and the component plant with every
+/// effect off (the general path's own overhead).
+fn closed_loop_trial_effects(c: &mut Criterion) {
+    let cfg = seed_closed_loop(1e-3);
+    let r: Vec<f64> = (0..1000)
+        .map(|k| if k >= 10 { 1e-3 } else { 0.0 })
+        .collect();
+    let base = ExtendedConfig::from_closed_loop(&cfg);
+    let gms = TableFriction::Gms(Gms {
+        n_elements: 6,
+        stiffness_n_per_m: [3e7, 2e7, 1e7, 6e6, 4e6, 2e6, 1.0, 1.0],
+        weights: [0.1, 0.15, 0.2, 0.2, 0.2, 0.15, 0.0, 0.0],
+        coulomb_force_n: 30.4,
+        static_force_n: 36.0,
+        stribeck_velocity_m_per_s: 1e-3,
+        viscous_n_s_per_m: 0.0,
+    });
+    let link = Link {
+        stiffness_n_per_m: 4.9e7,
+        damping_n_s_per_m: 2e3,
+        backlash_m: 20e-6,
+    };
+    let mut all = base;
+    all.drive.table_friction = gms;
+    all.drive.n_links = 1;
+    all.drive.links[0] = link;
+    let mut general = base;
+    general.axis = None;
+    let mut only_gms = base;
+    only_gms.drive.table_friction = gms;
+    let mut only_backlash = base;
+    only_backlash.drive.n_links = 1;
+    only_backlash.drive.links[0] = link;
+    for (name, ext) in [
+        ("closed_loop_1s_component_plant_effects_off", general),
+        ("closed_loop_1s_gms6", only_gms),
+        ("closed_loop_1s_two_mass_backlash", only_backlash),
+        ("closed_loop_1s_gms6_backlash_two_mass", all),
+    ] {
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                black_box(
+                    run_extended(&ext, black_box(&r), KnownInputs::default(), None).expect("trial"),
+                )
+            })
+        });
+    }
+}
+
+criterion_group!(
+    benches,
+    controller_update,
+    plant_period,
+    closed_loop_trial,
+    closed_loop_trial_effects
+);
 criterion_main!(benches);

@@ -52,8 +52,8 @@ Comparison (:func:`compare_models`)
     errors); ``rule="bic"`` selects the smallest BIC on the fit part (used automatically
     when nothing is held out). AIC/BIC: ``n·ln(RSS/n) + 2p`` / ``+ p·ln n`` on the fit part.
 
-The equations of each model are in ``/work/shared/docs/DOMAIN.md`` §3 and
-``docs/effects.md``; usage and a worked example are in ``docs/friction_fit.md``.
+The equations of each model are in ``/work/shared/docs/DOMAIN.md`` §3; usage, default
+bounds, results on synthetic data and costs are in ``docs/friction_fit.md``.
 """
 
 from __future__ import annotations

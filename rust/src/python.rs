@@ -707,6 +707,13 @@ fn optional_series(a: &Option<PyReadonlyArray1<'_, f64>>) -> Vec<f64> {
     a.as_ref().map_or_else(Vec::new, |a| a.as_array().to_vec())
 }
 
+/// Move the named `Vec` fields of `tr` into the dict `d` as numpy arrays under their names.
+macro_rules! put_arrays {
+    ($d:ident, $py:ident, $tr:ident; $($f:ident),+ $(,)?) => {
+        $( $d.set_item(stringify!($f), $tr.$f.into_pyarray($py))?; )+
+    };
+}
+
 fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("n_rhs", s.n_rhs)?;
@@ -753,32 +760,12 @@ fn simulate_system<'py>(
 fn trace_dict(py: Python<'_>, tr: Trace) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("stats", stats_dict(py, &tr.stats)?)?;
-    d.set_item("time_s", tr.time_s.into_pyarray(py))?;
-    d.set_item("reference_m", tr.reference_m.into_pyarray(py))?;
-    d.set_item("reference_counts", tr.reference_counts.into_pyarray(py))?;
-    d.set_item("position_m", tr.position_m.into_pyarray(py))?;
-    d.set_item("motor_position_m", tr.motor_position_m.into_pyarray(py))?;
-    d.set_item("velocity_m_per_s", tr.velocity_m_per_s.into_pyarray(py))?;
-    d.set_item("encoder_counts", tr.encoder_counts.into_pyarray(py))?;
-    d.set_item("current_a", tr.current_a.into_pyarray(py))?;
-    d.set_item("motor_voltage_v", tr.motor_voltage_v.into_pyarray(py))?;
-    d.set_item("command", tr.command.into_pyarray(py))?;
-    d.set_item("dac_code", tr.dac_code.into_pyarray(py))?;
+    put_arrays!(d, py, tr;
+        time_s, reference_m, reference_counts, position_m, motor_position_m,
+        velocity_m_per_s, encoder_counts, current_a, motor_voltage_v, command, dac_code,
+        p_term, i_term, d_term, flags, motor_friction_force_n, table_friction_force_n,
+        stuck, interferometer_m);
     d.set_item("error_counts", tr.error.into_pyarray(py))?;
-    d.set_item("p_term", tr.p_term.into_pyarray(py))?;
-    d.set_item("i_term", tr.i_term.into_pyarray(py))?;
-    d.set_item("d_term", tr.d_term.into_pyarray(py))?;
-    d.set_item("flags", tr.flags.into_pyarray(py))?;
-    d.set_item(
-        "motor_friction_force_n",
-        tr.motor_friction_force_n.into_pyarray(py),
-    )?;
-    d.set_item(
-        "table_friction_force_n",
-        tr.table_friction_force_n.into_pyarray(py),
-    )?;
-    d.set_item("stuck", tr.stuck.into_pyarray(py))?;
-    d.set_item("interferometer_m", tr.interferometer_m.into_pyarray(py))?;
     Ok(d)
 }
 
@@ -800,19 +787,9 @@ fn simulate_system_open_loop<'py>(
         .map_err(sim_err)?;
     let d = PyDict::new(py);
     d.set_item("stats", stats_dict(py, &tr.stats)?)?;
-    d.set_item("time_s", tr.time_s.into_pyarray(py))?;
-    d.set_item("position_m", tr.position_m.into_pyarray(py))?;
-    d.set_item("motor_position_m", tr.motor_position_m.into_pyarray(py))?;
-    d.set_item("velocity_m_per_s", tr.velocity_m_per_s.into_pyarray(py))?;
-    d.set_item(
-        "motor_friction_force_n",
-        tr.motor_friction_force_n.into_pyarray(py),
-    )?;
-    d.set_item(
-        "table_friction_force_n",
-        tr.table_friction_force_n.into_pyarray(py),
-    )?;
-    d.set_item("stuck", tr.stuck.into_pyarray(py))?;
+    put_arrays!(d, py, tr;
+        time_s, position_m, motor_position_m, velocity_m_per_s, motor_friction_force_n,
+        table_friction_force_n, stuck);
     Ok(d)
 }
 

@@ -147,6 +147,35 @@ def _harmonic(kappa: float, c: float, s: float) -> tuple[float, float, float]:
     return (math.hypot(c, s), kappa, math.atan2(-s, c))
 
 
+def _presliding_params(sys: System) -> tuple[Param, ...]:
+    """Coulomb force, static excess, presliding stiffness and Stribeck velocity, with bounds
+    scaled from the nominal model (the parameters of the LuGre and GMS candidates)."""
+    fc, _ = _table_levels(sys)
+    k = _presliding_stiffness(sys)
+    return (
+        Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
+        Param(
+            name="static_excess_n",
+            unit="N",
+            lower=0.01 * fc,
+            upper=2 * fc,
+            initial=0.3 * fc,
+            log=True,
+        ),
+        Param(
+            name="stiffness_n_per_m", unit="N/m", lower=k / 100, upper=k * 100, initial=k, log=True
+        ),
+        Param(
+            name="stribeck_velocity_m_per_s",
+            unit="m/s",
+            lower=1e-5,
+            upper=1e-2,
+            initial=5e-4,
+            log=True,
+        ),
+    )
+
+
 def _build() -> dict[str, Callable[[System], Candidate | str]]:
     """Factories: nominal system → candidate, or the reason it does not apply."""
 
@@ -236,37 +265,9 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         )
 
     def lugre(sys: System) -> Candidate | str:
-        fc, _ = _table_levels(sys)
-        k = _presliding_stiffness(sys)
         return Candidate(
             name="lugre",
-            params=(
-                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
-                Param(
-                    name="static_excess_n",
-                    unit="N",
-                    lower=0.01 * fc,
-                    upper=2 * fc,
-                    initial=0.3 * fc,
-                    log=True,
-                ),
-                Param(
-                    name="stiffness_n_per_m",
-                    unit="N/m",
-                    lower=k / 100,
-                    upper=k * 100,
-                    initial=k,
-                    log=True,
-                ),
-                Param(
-                    name="stribeck_velocity_m_per_s",
-                    unit="m/s",
-                    lower=1e-5,
-                    upper=1e-2,
-                    initial=5e-4,
-                    log=True,
-                ),
-            ),
+            params=_presliding_params(sys),
             apply=lambda s, v: _fx(
                 s,
                 table_friction=LuGre(
@@ -283,37 +284,9 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         )
 
     def gms(sys: System) -> Candidate | str:
-        fc, _ = _table_levels(sys)
-        k = _presliding_stiffness(sys)
         return Candidate(
             name="gms",
-            params=(
-                Param(name="coulomb_force_n", unit="N", lower=0.1 * fc, upper=3 * fc, initial=fc),
-                Param(
-                    name="static_excess_n",
-                    unit="N",
-                    lower=0.01 * fc,
-                    upper=2 * fc,
-                    initial=0.3 * fc,
-                    log=True,
-                ),
-                Param(
-                    name="stiffness_n_per_m",
-                    unit="N/m",
-                    lower=k / 100,
-                    upper=k * 100,
-                    initial=k,
-                    log=True,
-                ),
-                Param(
-                    name="stribeck_velocity_m_per_s",
-                    unit="m/s",
-                    lower=1e-5,
-                    upper=1e-2,
-                    initial=5e-4,
-                    log=True,
-                ),
-            ),
+            params=_presliding_params(sys),
             apply=lambda s, v: _fx(s, table_friction=gms3(v[0], v[0] + v[1], v[2], v[3])),
             signature="Maxwell-slip presliding with non-local memory: hysteresis that depends "
             "on the reversal history, plus a Stribeck curve",
