@@ -300,6 +300,7 @@ def run_benchmark(
                 "gap_after_rms_m": after,
                 "noise_floor_rms_m": floor,
                 "shrink": shrink,
+                "explained_fraction": rep["explained_fraction"],
                 "seconds": time.perf_counter() - t,
                 "truth": truth["parameters"],
             }
@@ -325,6 +326,9 @@ def run_benchmark(
         if nulls
         else math.nan,
         "median_shrink": float(np.median([r["shrink"] for r in eff])) if eff else math.nan,
+        "median_explained_fraction": float(np.median([r["explained_fraction"] or 0.0 for r in eff]))
+        if eff
+        else math.nan,
         "median_seconds_per_case": float(np.median([r["seconds"] for r in rows])),
         "total_seconds": time.perf_counter() - t0,
         "confusion": confusion,
@@ -336,13 +340,30 @@ def run_benchmark(
         "# Diagnosis blind benchmark",
         "",
         f"{cases} cases, seed {seed}. Top-1 {summary['top1']:.0%}, false alarms "
-        f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.0%}, "
+        f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.0%} "
+        f"(of the gap above the noise floor: {summary['median_explained_fraction']:.0%}), "
         f"median {summary['median_seconds_per_case']:.0f} s per case.",
+        "",
+        "Confusion matrix (rows: hidden effect; columns: first selected effect):",
         "",
         "| hidden \\ found | " + " | ".join(labels) + " |",
         "|---" * (len(labels) + 1) + "|",
     ]
     for h in labels:
         md.append(f"| {h} | " + " | ".join(str(confusion[h][f]) for f in labels) + " |")
+    md += [
+        "",
+        "| case | hidden | found | selected | gap before [nm] | after [nm] | floor [nm] | "
+        "shrink | explained | time [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        ex = r["explained_fraction"]
+        md.append(
+            f"| {r['case']} | {r['hidden']} | {r['found']} | {', '.join(r['selected']) or '—'} "
+            f"| {r['gap_before_rms_m'] * 1e9:.0f} | {r['gap_after_rms_m'] * 1e9:.0f} "
+            f"| {r['noise_floor_rms_m'] * 1e9:.0f} | {r['shrink']:.0%} "
+            f"| {'—' if ex is None else f'{ex:.0%}'} | {r['seconds']:.0f} |"
+        )
     (out / "benchmark.md").write_text("\n".join(md) + "\n")
     return summary

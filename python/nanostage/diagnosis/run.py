@@ -349,6 +349,7 @@ def assemble_report(
         "best_single_effect": best_single.effect if best_single else None,
         "noise_floor_rms_m": floor,
         "unexplained_rms_m": math.sqrt(max(total_after**2 - floor**2, 0.0)),
+        "explained_fraction": _explained(before["total_rms_m"], total_after, floor),
         "forward_selection": [
             {
                 "round": i + 1,
@@ -376,6 +377,12 @@ def assemble_report(
         ],
         "timing_s": out["timing_s"],
     }
+
+
+def _explained(before: float, after: float, floor: float) -> float | None:
+    """Fraction of the gap above the noise floor that the model removed (mean squares)."""
+    excess = before**2 - floor**2
+    return (before**2 - after**2) / excess if excess > 0 else None
 
 
 def _evidence(
