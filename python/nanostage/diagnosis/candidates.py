@@ -408,8 +408,18 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             name="backlash",
             params=(
                 Param(name="width_m", unit="m", lower=1e-7, upper=1e-4, initial=5e-6, log=True),
+                Param(
+                    name="contact_stiffness_n_per_m",
+                    unit="N/m",
+                    lower=1e6,
+                    upper=1e9,
+                    initial=5e7,
+                    log=True,
+                ),
             ),
-            apply=lambda s, v: _fx(s, backlash=Backlash(width_m=v[0])),
+            apply=lambda s, v: _fx(
+                s, backlash=Backlash(width_m=v[0], contact_stiffness_n_per_m=v[1])
+            ),
             signature="a dead band on reversal: lost motion after a change of direction and "
             "limit cycles around the target",
         )

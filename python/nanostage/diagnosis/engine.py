@@ -62,7 +62,7 @@ class DiagnosisSettings:
     """Knobs of the engine (defaults suit ~10 experiments in about a minute on 2 cores)."""
 
     n_starts_nominal: int = 3
-    n_starts_candidate: int = 2
+    n_starts_candidate: int = 3
     max_nfev_per_param: int = 12
     diff_step: float = 0.03
     bootstrap: int = 400
@@ -137,10 +137,19 @@ class FitProblem:
         # 1/√n so that it contributes its mean square.
         return np.concatenate([r / (self.scale_m * math.sqrt(len(r))) for r in res])
 
-    def fit(self, n_starts: int, settings: DiagnosisSettings, seed: int, n_warm: int = 0) -> Fit:
+    def fit(
+        self,
+        n_starts: int,
+        settings: DiagnosisSettings,
+        seed: int,
+        n_warm: int = 0,
+        prior: Sequence[float] | None = None,
+    ) -> Fit:
         """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates. The
-        first start is every parameter's ``initial``; the others draw the parameters after
-        the first ``n_warm`` (which keep their initial, warm values) by Latin hypercube."""
+        first start is every parameter's ``initial``; with ``prior`` (physical values, e.g.
+        the preset's values of warm-started parameters) the second start is ``prior``; the
+        others draw the parameters after the first ``n_warm`` (which keep their initial,
+        warm values) by Latin hypercube."""
         k = len(self.params)
         self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
         if k == 0:
@@ -155,9 +164,15 @@ class FitProblem:
             )
         first = np.array([1.0 + p.to_unit(p.initial) for _, p in self.params])
         starts = [first]
+        if prior is not None:
+            second = np.array(
+                [1.0 + p.to_unit(v) for (_, p), v in zip(self.params, prior, strict=True)]
+            )
+            if not np.allclose(second, first):
+                starts.append(second)
         n_draw = k - n_warm if k > n_warm else k
-        if n_starts > 1:
-            lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - 1)
+        if n_starts > len(starts):
+            lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - len(starts))
             for row in lhs:
                 u = first.copy()
                 u[k - n_draw :] = 1.0 + row
@@ -452,7 +467,15 @@ class _Ctx:
                 self.pool,
                 self.adapt,
             )
-            f = prob.fit(n_starts, self.st, seed, n_warm=len(free) if warm else 0)
+            # Two starts at least: the warm values, and the manifest's (prior) values.
+            prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
+            f = prob.fit(
+                max(n_starts, 2) if warm else n_starts,
+                self.st,
+                seed,
+                n_warm=len(free) if warm else 0,
+                prior=prior if warm else None,
+            )
             res = prob.residuals(f.system, validate)
             fits.append(f)
             residuals.append(res)
