@@ -585,12 +585,15 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
 
     def delay(name: str, field: str, what: str) -> Callable[[System], Candidate]:
         def make(sys: System) -> Candidate:
+            own = int(getattr(sys.effects, field))
+            # Samples added to the model's own delay; −1 removes one the model assumes.
+            changes = tuple(k for k in (-1, 1, 2, 3) if own + k >= 0)
             return Candidate(
                 name=name,
                 params=(),
                 apply=lambda s, v: _fx(s, **{field: getattr(s.effects, field) + int(v[0])}),
                 signature=what,
-                discrete=(1, 2, 3),  # samples added to the model's own delay
+                discrete=changes,
             )
 
         return make

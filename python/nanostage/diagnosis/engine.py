@@ -73,6 +73,7 @@ class DiagnosisSettings:
     explainable_factor: float = 1.5
     forward_rounds: int = 3
     forward_top: int = 8
+    refine_top: int = 4
     seed: int = 0
     workers: int = 0  #: 0: one per CPU
 
@@ -450,6 +451,7 @@ class _Ctx:
         apply_extra: Callable[[System, Sequence[float]], System],
         n_starts: int,
         seed: int,
+        screen: bool = False,
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]]]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds) and the validation residuals per fold."""
@@ -470,11 +472,11 @@ class _Ctx:
             # Two starts at least: the warm values, and the manifest's (prior) values.
             prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
             f = prob.fit(
-                max(n_starts, 2) if warm else n_starts,
+                1 if screen else (max(n_starts, 2) if warm else n_starts),
                 self.st,
                 seed,
                 n_warm=len(free) if warm else 0,
-                prior=prior if warm else None,
+                prior=prior if (warm and not screen) else None,
             )
             res = prob.residuals(f.system, validate)
             fits.append(f)
@@ -540,7 +542,7 @@ def diagnose_experiments(
             for i, cand in enumerate(cand_now):
                 t0 = time.perf_counter()
                 try:
-                    r = _judge(cand, current, current_ms, ctx, i)
+                    r = _judge(cand, current, current_ms, ctx, i, screen=True)
                 except (ValueError, RuntimeError) as exc:
                     # An invalid combination with the effects already selected, or a
                     # simulation failing at the start values: reported, not fatal.
@@ -552,6 +554,25 @@ def diagnose_experiments(
                     f"  round {rnd + 1} [{i + 1}/{len(cand_now)}] {cand.name:26s} "
                     f"validation {r.validation_rms_m * 1e9:9.1f} nm  shrink {r.shrink:+.1%}"
                     f"{'  significant' if r.significant else ''}"
+                    f"  ({time.perf_counter() - t0:.1f} s)",
+                    progress,
+                )
+            results.sort(key=lambda r: r.validation_rms_m)
+            # Refine the best few with all starts (warm, the manifest's prior, Latin
+            # hypercube), then rank again.
+            by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
+            for j, r in enumerate(results[: st.refine_top]):
+                i, cand = by_name[r.effect]
+                t0 = time.perf_counter()
+                try:
+                    results[j] = _judge(cand, current, current_ms, ctx, i)
+                except (ValueError, RuntimeError) as exc:
+                    skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
+                    continue
+                _progress(
+                    f"  round {rnd + 1} refit {cand.name:26s} validation "
+                    f"{results[j].validation_rms_m * 1e9:9.1f} nm  shrink {results[j].shrink:+.1%}"
+                    f"{'  significant' if results[j].significant else ''}"
                     f"  ({time.perf_counter() - t0:.1f} s)",
                     progress,
                 )
@@ -597,8 +618,15 @@ def _with_effect(current: System, best: CandidateResult, cands: Sequence[Candida
 
 
 def _judge(
-    cand: Candidate, base: System, base_ms: FloatArray, ctx: _Ctx, index: int
+    cand: Candidate,
+    base: System,
+    base_ms: FloatArray,
+    ctx: _Ctx,
+    index: int,
+    screen: bool = False,
 ) -> CandidateResult:
+    """Fit one candidate on every fold and judge it on the validation experiments
+    (``screen``: one warm start only, for ranking)."""
     st = ctx.st
     extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
     setting: int | None = None
@@ -609,7 +637,7 @@ def _judge(
             def fixed(s: System, v: Sequence[float], k: int = k) -> System:
                 return cand.apply(s, [k])
 
-            fits, ms, _ = ctx.fit_and_validate(base, (), fixed, 1, st.seed + index)
+            fits, ms, _ = ctx.fit_and_validate(base, (), fixed, 1, st.seed + index, screen)
             train = float(np.mean([f.train_rms_m for f in fits]))
             if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
                 best = (fits, ms, k)
@@ -618,7 +646,7 @@ def _judge(
         k_params = 1
     else:
         fits, ms, _ = ctx.fit_and_validate(
-            base, extra, cand.apply, st.n_starts_candidate, st.seed + index
+            base, extra, cand.apply, st.n_starts_candidate, st.seed + index, screen
         )
         k_params = len(cand.params)
     d = base_ms - ms
