@@ -471,12 +471,16 @@ class _Ctx:
             )
             # Two starts at least: the warm values, and the manifest's (prior) values.
             prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
+            # Screening uses the warm start only, except for candidates without continuous
+            # parameters (delays), whose changes can move the free parameters far: they
+            # also get the prior start.
+            both = warm and (not screen or not params)
             f = prob.fit(
-                1 if screen else (max(n_starts, 2) if warm else n_starts),
+                (max(n_starts, 2) if both else 1) if screen or warm else n_starts,
                 self.st,
                 seed,
                 n_warm=len(free) if warm else 0,
-                prior=prior if (warm and not screen) else None,
+                prior=prior if both else None,
             )
             res = prob.residuals(f.system, validate)
             fits.append(f)

@@ -149,7 +149,7 @@ def experiment_advice(
             if len(d) < 2:
                 continue
             se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
-            close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.15 * min(
+            close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
                 a.validation_rms_m, b.validation_rms_m
             )
             if close and abs(float(np.mean(d))) <= 2.0 * se:
