@@ -19,11 +19,11 @@ use crate::sim::{
     Trace,
 };
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 create_exception!(
     _core,
@@ -1202,7 +1202,10 @@ fn campaign_run<'py>(
         .map_err(config_err)?;
     let (n, m) = (out.n_trials(), out.n_measure);
     let d = PyDict::new(py);
-    d.set_item("position_m", out.position_m.into_pyarray(py).reshape([n, m])?)?;
+    d.set_item(
+        "position_m",
+        out.position_m.into_pyarray(py).reshape([n, m])?,
+    )?;
     d.set_item("encoder_m", out.encoder_m.into_pyarray(py).reshape([n, m])?)?;
     let status: Vec<i8> = out.status.iter().map(|&s| s as i8).collect();
     d.set_item("status", status.into_pyarray(py))?;
