@@ -102,11 +102,50 @@ fn closed_loop_trial_effects(c: &mut Criterion) {
     }
 }
 
+/// A campaign: 64 trials of three 100 µm steps (0.52 s simulated each, stochastic friction
+/// so every trial differs) on a local pool of 1 and 2 threads; throughput in trials/s.
+fn campaign_threads(c: &mut Criterion) {
+    use criterion::{BenchmarkId, Throughput};
+    use nanostage::sim::{run_campaign, Campaign, SpreadDistribution, StochasticFriction};
+    let mut cfg = ExtendedConfig::from_closed_loop(&seed_closed_loop(100e-6));
+    cfg.stochastic = Some(StochasticFriction {
+        level_spread: 0.2,
+        distribution: SpreadDistribution::LogNormal,
+        within_spread: 0.0,
+        correlation_time_s: 0.1,
+    });
+    let mut r = vec![0.0; 40];
+    let mut idx = Vec::new();
+    for _ in 0..3 {
+        r.extend(std::iter::repeat_n(100e-6, 120));
+        idx.push(r.len() - 1);
+        r.extend(std::iter::repeat_n(0.0, 40));
+    }
+    let campaign = Campaign {
+        config: &cfg,
+        reference_m: &r,
+        measure_index: &idx,
+    };
+    let n_trials = 64u64;
+    let mut g = c.benchmark_group("campaign_64_trials");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(n_trials));
+    for threads in [1usize, 2] {
+        g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, &t| {
+            b.iter(|| {
+                black_box(run_campaign(&campaign, 1, 0, n_trials, t, None, None).expect("campaign"))
+            })
+        });
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
     controller_update,
     plant_period,
     closed_loop_trial,
-    closed_loop_trial_effects
+    closed_loop_trial_effects,
+    campaign_threads
 );
 criterion_main!(benches);

@@ -9,8 +9,13 @@ __all__ = [
     "ConfigError",
     "SimulationError",
     "__version__",
-    "friction_response",
+    "campaign_progress",
+    "campaign_request_stop",
+    "campaign_reset",
+    "campaign_run",
+    "campaign_stop_requested",
     "cascade_run",
+    "friction_response",
     "fxp_requantize",
     "pid_run",
     "seed_values",
@@ -78,3 +83,16 @@ def friction_response(
     integrator: Any,
     terms: list[tuple[float, float, float]] = ...,
 ) -> npt.NDArray[np.float64]: ...
+def campaign_run(
+    system: Any,
+    reference_m: npt.NDArray[np.float64],
+    measure_index: npt.NDArray[np.int64],
+    trial_start: int,
+    trial_stop: int,
+    seed: int,
+    threads: int,
+) -> dict[str, Any]: ...
+def campaign_request_stop() -> None: ...
+def campaign_reset() -> None: ...
+def campaign_stop_requested() -> bool: ...
+def campaign_progress() -> int: ...

@@ -24,6 +24,18 @@ def _reproduce(args: argparse.Namespace) -> int:
         f"compute time: {summary['compute_time_s']:.3f} s; wrote {args.out}/summary.json"
         + ("" if args.no_plot else f" and {args.out}/steps.png")
     )
+    if args.campaigns:
+        from .paper_campaigns import CampaignSettings, write_paper_campaigns
+
+        res = write_paper_campaigns(
+            args.out,
+            CampaignSettings(n_trials=args.campaign_trials, seed=args.campaign_seed),
+            threads=args.threads,
+            log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+        )
+        print()
+        print(res["markdown"])
+        print(f"wrote {args.out}/campaigns.json and {args.out}/campaigns.md")
     return 0
 
 
@@ -100,6 +112,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     rep = sub.add_parser("reproduce", help="simulate the paper's four step experiments")
     rep.add_argument("--out", default="out", help="output directory (default: out)")
     rep.add_argument("--no-plot", action="store_true", help="skip steps.png")
+    rep.add_argument(
+        "--campaigns",
+        action="store_true",
+        help="also run the ISO 230-2 step campaigns: calibrate the stochastic friction spread "
+        "on the 100 µm figure, predict 1 mm (about 30 s; campaigns.json, campaigns.md)",
+    )
+    rep.add_argument(
+        "--campaign-trials",
+        type=int,
+        default=32,
+        help="trials per campaign with --campaigns (default 32)",
+    )
+    rep.add_argument(
+        "--campaign-seed", type=int, default=0, help="campaign seed with --campaigns (default 0)"
+    )
+    rep.add_argument(
+        "--threads", type=int, default=None, help="threads of the campaigns (default: all cores)"
+    )
+    rep.add_argument("--quiet", action="store_true", help="no campaign progress on stderr")
     rep.set_defaults(func=_reproduce)
     iso230_2.add_cli(sub)
     dg = sub.add_parser(

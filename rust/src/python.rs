@@ -14,14 +14,16 @@ use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Stats};
 use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
 use crate::sim::{
-    run_drive_open_loop, run_extended, run_open_loop, ControllerKind, ExtendedConfig,
-    Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction, Trace,
+    run_campaign, run_drive_open_loop, run_extended, run_open_loop, Campaign, ControllerKind,
+    ExtendedConfig, Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction,
+    Trace,
 };
-use numpy::{IntoPyArray, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 create_exception!(
     _core,
@@ -1116,6 +1118,111 @@ fn seed_values(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     Ok(d)
 }
 
+/// Stop flag of the campaigns of this process (set from Python on Ctrl-C).
+static CAMPAIGN_STOP: AtomicBool = AtomicBool::new(false);
+/// Finished trials of the campaigns of this process since the last reset.
+static CAMPAIGN_PROGRESS: AtomicUsize = AtomicUsize::new(0);
+
+/// Ask the running campaigns of this process to stop (within 256 control samples).
+#[pyfunction]
+fn campaign_request_stop() {
+    CAMPAIGN_STOP.store(true, Ordering::Relaxed);
+}
+
+/// Clear the stop flag and the progress counter (before a new campaign).
+#[pyfunction]
+fn campaign_reset() {
+    CAMPAIGN_STOP.store(false, Ordering::Relaxed);
+    CAMPAIGN_PROGRESS.store(0, Ordering::Relaxed);
+}
+
+/// Whether a stop has been requested since the last reset.
+#[pyfunction]
+fn campaign_stop_requested() -> bool {
+    CAMPAIGN_STOP.load(Ordering::Relaxed)
+}
+
+/// Trials finished (completed, failed or not started) since the last reset.
+#[pyfunction]
+fn campaign_progress() -> usize {
+    CAMPAIGN_PROGRESS.load(Ordering::Relaxed)
+}
+
+/// Run trials `trial_start..trial_stop` of one cycle on a local pool of `threads` threads,
+/// without the GIL. Trial i has seed `stream_seed(seed, i)`. Returns a dict: `position_m`
+/// and `encoder_m` (float64, shape (n_trials, n_measure), NaN for failed trials), `status`
+/// (int8, shape (n_trials,)), and for the trials that did not complete `failed_trial`
+/// (uint64), `failed_t_s` (float64), `failed_message` and `failed_state` (lists).
+#[pyfunction]
+#[pyo3(signature = (system, reference_m, measure_index, trial_start, trial_stop, seed, threads))]
+fn campaign_run<'py>(
+    py: Python<'py>,
+    system: PySystem,
+    reference_m: PyReadonlyArray1<'py, f64>,
+    measure_index: PyReadonlyArray1<'py, i64>,
+    trial_start: u64,
+    trial_stop: u64,
+    seed: u64,
+    threads: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let reference: Vec<f64> = reference_m.as_array().to_vec();
+    let x0 = reference.first().copied().unwrap_or(0.0);
+    let cfg = build_system(&system, seed, x0).map_err(config_err)?;
+    let idx = measure_index
+        .as_array()
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            usize::try_from(i).map_err(|_| {
+                config_err(CoreConfigError::new(
+                    format!("measure_index[{k}]"),
+                    i,
+                    "a non-negative sample index",
+                ))
+            })
+        })
+        .collect::<PyResult<Vec<usize>>>()?;
+    let campaign = Campaign {
+        config: &cfg,
+        reference_m: &reference,
+        measure_index: &idx,
+    };
+    let out = py
+        .detach(|| {
+            run_campaign(
+                &campaign,
+                seed,
+                trial_start,
+                trial_stop,
+                threads,
+                Some(&CAMPAIGN_STOP),
+                Some(&CAMPAIGN_PROGRESS),
+            )
+        })
+        .map_err(config_err)?;
+    let (n, m) = (out.n_trials(), out.n_measure);
+    let d = PyDict::new(py);
+    d.set_item(
+        "position_m",
+        out.position_m.into_pyarray(py).reshape([n, m])?,
+    )?;
+    d.set_item("encoder_m", out.encoder_m.into_pyarray(py).reshape([n, m])?)?;
+    let status: Vec<i8> = out.status.iter().map(|&s| s as i8).collect();
+    d.set_item("status", status.into_pyarray(py))?;
+    let trial: Vec<u64> = out.failures.iter().map(|f| f.trial).collect();
+    let t_s: Vec<f64> = out.failures.iter().map(|f| f.t_s).collect();
+    d.set_item("failed_trial", trial.into_pyarray(py))?;
+    d.set_item("failed_t_s", t_s.into_pyarray(py))?;
+    let (messages, states): (Vec<String>, Vec<Vec<f64>>) = out
+        .failures
+        .into_iter()
+        .map(|f| (f.message, f.state))
+        .unzip();
+    d.set_item("failed_message", messages)?;
+    d.set_item("failed_state", states)?;
+    Ok(d)
+}
+
 /// Validate a plant (raises ConfigError naming the field).
 #[pyfunction]
 fn validate_plant(plant: PyPlant) -> PyResult<()> {
@@ -1155,5 +1262,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(validate_plant, m)?)?;
     m.add_function(wrap_pyfunction!(validate_controller, m)?)?;
     m.add_function(wrap_pyfunction!(validate_integrator, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign_run, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign_request_stop, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign_reset, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign_stop_requested, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign_progress, m)?)?;
     Ok(())
 }

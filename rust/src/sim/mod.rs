@@ -1,8 +1,13 @@
 //! Orchestration: the control-tick loop and what it records. No physics, no pyo3.
 
+mod campaign;
 mod extended;
 mod trial;
 
+pub use campaign::{
+    run_campaign, trial_seed, Campaign, CampaignOutput, TrialFailure, TrialStatus, MAX_THREADS,
+    MAX_TRIALS,
+};
 pub use extended::{
     run_drive_open_loop, run_extended, stream_seed, ControllerKind, DriveOpenLoopTrace,
     ExtendedConfig, Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction,

@@ -1,0 +1,559 @@
+"""Monte Carlo ISO 230-2 campaigns: many trials of one test cycle on the closed loop.
+
+A *trial* is one run of a whole :class:`~nanostage.cycles.Cycle` (e.g. five repeated
+100 µm steps) with its own random draws (stochastic friction level and fluctuation, encoder
+noise, sample jitter: whatever the :class:`~nanostage.System` switches on). A *campaign* is
+``n_trials`` such trials. Only the positions at the measurement instants are kept (the true
+table position, as an interferometer reads it, and the encoder reading), plus a status per
+trial, so memory is ``2 · n_trials · n_measurements`` floats whatever the cycle's length.
+
+Determinism rule: trial ``i`` uses the seed ``stream_seed(seed, i)`` (SplitMix64 of the
+campaign seed and the trial index) and nothing else, so the same ``seed`` gives bit-identical
+results whatever the thread count, the chunking, or the executor the chunks run on.
+
+A numerical failure in one trial is that trial's status (:class:`TrialStatus`) with the time
+and state of the failure (:attr:`CampaignResult.failures`); the other trials complete.
+Invalid input raises :class:`nanostage.ConfigError` before any trial runs.
+
+Example::
+
+    cycle = nanostage.cycles.step_cycle(step_m=100e-6, repeats=5, dwell_s=0.5,
+                                        return_s=0.5, sample_period_s=1e-3)
+    result = nanostage.campaign.run_campaign(system, cycle, n_trials=64, seed=1)
+    result.evaluate(0).repeatability_up_m        # R↑ of trial 0
+    result.distribution()["repeatability_up_m"]   # R↑ of every trial
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Final, Literal, Protocol, TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from . import _core, iso230_2
+from ._core import ConfigError
+from .config import System
+from .cycles import Cycle
+
+__all__ = [
+    "MAX_THREADS",
+    "MAX_TRIALS",
+    "CampaignResult",
+    "TrialFailure",
+    "TrialStatus",
+    "run_campaign",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+#: Most trials of one campaign (the core's limit per call).
+MAX_TRIALS: Final[int] = 1 << 32
+#: Most threads of the local pool.
+MAX_THREADS: Final[int] = 1024
+#: Seconds between two progress-bar updates.
+_REFRESH_S: Final[float] = 0.1
+#: Width of the progress bar in characters.
+_BAR_WIDTH: Final[int] = 30
+
+Reading = Literal["position", "encoder"]
+
+
+class TrialStatus(IntEnum):
+    """Outcome of one trial (mirrors the core's ``TrialStatus``)."""
+
+    OK = 0
+    STEP_SIZE_TOO_SMALL = 1
+    SINGULAR_MATRIX = 2
+    NON_FINITE = 3
+    TOO_MANY_STEPS = 4
+    INTERRUPTED = 5
+    NOT_STARTED = 6
+    CONFIG = 7
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrialFailure:
+    """A trial that did not complete.
+
+    Attributes
+    ----------
+    trial : int
+        Trial index.
+    status : TrialStatus
+        What happened.
+    t_s : float
+        Simulated time of the failure [s] (NaN for a trial that never started).
+    state : tuple of float
+        Plant state vector at the failure (empty when not available).
+    message : str
+        The error in words.
+    """
+
+    trial: int
+    status: TrialStatus
+    t_s: float
+    state: tuple[float, ...]
+    message: str
+
+
+class _Future(Protocol):
+    def done(self) -> bool: ...
+    def result(self) -> Any: ...
+    def cancel(self) -> Any: ...
+
+
+class _Submitter(Protocol):
+    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any: ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class CampaignResult:
+    """The positions of every trial at the cycle's measurement instants, and the statuses.
+
+    Arrays are read-only. Compares by identity.
+
+    Attributes
+    ----------
+    cycle : Cycle
+        The test cycle every trial ran.
+    seed : int
+        Campaign seed (trial ``i`` used ``stream_seed(seed, i)``).
+    position_m : ndarray of float64, shape (n_trials, n_measurements)
+        True table position at each measurement instant [m] (what an interferometer reads);
+        NaN rows for trials that did not complete.
+    encoder_m : ndarray of float64, shape (n_trials, n_measurements)
+        Encoder reading (counts · count size) at each measurement instant [m]; NaN rows for
+        trials that did not complete.
+    status : ndarray of int8, shape (n_trials,)
+        :class:`TrialStatus` of each trial.
+    failures : tuple of TrialFailure
+        The trials that did not complete, in trial order.
+    compute_s : float
+        Wall time of the campaign [s].
+    """
+
+    cycle: Cycle
+    seed: int
+    position_m: FloatArray
+    encoder_m: FloatArray
+    status: npt.NDArray[np.int8]
+    failures: tuple[TrialFailure, ...]
+    compute_s: float
+
+    @property
+    def n_trials(self) -> int:
+        """Number of trials."""
+        return int(self.status.shape[0])
+
+    @property
+    def ok(self) -> npt.NDArray[np.bool_]:
+        """Mask of the trials that completed, shape ``(n_trials,)``."""
+        out: npt.NDArray[np.bool_] = self.status == TrialStatus.OK
+        return out
+
+    @property
+    def n_failed(self) -> int:
+        """Number of trials that did not complete."""
+        return int(self.n_trials - np.count_nonzero(self.ok))
+
+    def actual_m(self, reading: Reading = "position") -> FloatArray:
+        """Positions of one reading, shape ``(n_trials, n_measurements)`` [m].
+
+        Parameters
+        ----------
+        reading : {"position", "encoder"}
+            The true table position (interferometer) or the encoder reading.
+        """
+        if reading == "position":
+            return self.position_m
+        if reading == "encoder":
+            return self.encoder_m
+        raise ConfigError(f"reading = {reading!r} is invalid: expected 'position' or 'encoder'")
+
+    def evaluate(
+        self,
+        trial: int | None = None,
+        *,
+        reading: Reading = "position",
+        coverage_factor: float = 2.0,
+    ) -> iso230_2.Iso230Result:
+        """ISO 230-2 evaluation of one trial, or of all completed trials pooled.
+
+        Parameters
+        ----------
+        trial : int or None
+            Trial index in ``[0, n_trials)``: that trial's test. ``None``: every completed
+            trial's measurements taken as further runs of one test (runs renumbered), i.e.
+            the test as if the trial-to-trial variation happened between runs.
+        reading : {"position", "encoder"}
+            Which position to evaluate (default: the true table position, as the paper's
+            interferometer measured it).
+        coverage_factor : float, default 2.0
+            Coverage factor ``k`` [-].
+
+        Returns
+        -------
+        iso230_2.Iso230Result
+
+        Raises
+        ------
+        ConfigError
+            On a trial index out of range, or a trial that did not complete.
+        """
+        actual = self.actual_m(reading)
+        cyc = self.cycle
+        if trial is not None:
+            if isinstance(trial, bool) or not isinstance(trial, (int, np.integer)):
+                raise TypeError(f"trial must be an int or None, not {type(trial).__name__}")
+            t = int(trial)
+            if not 0 <= t < self.n_trials:
+                raise ConfigError(
+                    f"trial = {t} is invalid: expected an index in [0, {self.n_trials - 1}]"
+                )
+            if self.status[t] != TrialStatus.OK:
+                raise ConfigError(
+                    f"trial = {t} is invalid: it did not complete "
+                    f"({TrialStatus(int(self.status[t])).name})"
+                )
+            return cyc.evaluate(actual[t], coverage_factor=coverage_factor)
+        rows = np.flatnonzero(self.ok)
+        if rows.size == 0:
+            raise ConfigError("trial = None is invalid: no trial completed")
+        runs_per_trial = int(np.max(cyc.run))
+        n = rows.size
+        direction = np.where(cyc.direction > 0, "+", "-").astype(np.str_)
+        records = iso230_2.MeasurementRecords(
+            target_m=np.tile(cyc.target_m, n),
+            direction=np.tile(direction, n),
+            run=(cyc.run[None, :] + runs_per_trial * np.arange(n)[:, None]).ravel(),
+            actual_m=actual[rows].ravel(),
+        )
+        return records.evaluate(coverage_factor=coverage_factor)
+
+    def distribution(
+        self, *, reading: Reading = "position", coverage_factor: float = 2.0
+    ) -> dict[str, FloatArray]:
+        """Every ISO 230-2 axis parameter of every trial.
+
+        Returns
+        -------
+        dict of str to ndarray of float64, shape (n_trials,)
+            Keyed by :class:`~nanostage.iso230_2.Iso230Result` attribute (``accuracy_up_m``
+            for A↑, ``repeatability_up_m`` for R↑, ...) [m]; NaN for trials that did not
+            complete and for parameters a unidirectional test does not have.
+        """
+        names = [attr for _, attr, _ in iso230_2.AXIS_PARAMETERS]
+        out = {name: np.full(self.n_trials, np.nan) for name in names}
+        for t in np.flatnonzero(self.ok):
+            params = self.evaluate(int(t), reading=reading, coverage_factor=coverage_factor)
+            for name, value in params.axis_parameters().items():
+                if value is not None:
+                    out[name][t] = value
+        return out
+
+    def summary(
+        self, *, reading: Reading = "position", coverage_factor: float = 2.0
+    ) -> dict[str, dict[str, float]]:
+        """Mean, standard deviation and percentiles (5, 50, 95) over the completed trials of
+        each axis parameter that the test has [m]."""
+        out: dict[str, dict[str, float]] = {}
+        for name, v in self.distribution(reading=reading, coverage_factor=coverage_factor).items():
+            v = v[np.isfinite(v)]
+            if v.size == 0:
+                continue
+            p5, p50, p95 = np.percentile(v, [5.0, 50.0, 95.0])
+            out[name] = {
+                "mean": float(np.mean(v)),
+                "std": float(np.std(v, ddof=1)) if v.size > 1 else math.nan,
+                "p5": float(p5),
+                "median": float(p50),
+                "p95": float(p95),
+                "n": float(v.size),
+            }
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------------
+
+
+def _run_chunk(
+    system: System,
+    cycle_reference: FloatArray,
+    measure_index: IntArray,
+    start: int,
+    stop: int,
+    seed: int,
+    threads: int = 1,
+) -> dict[str, Any]:
+    """Trials ``start..stop`` of a campaign (the unit of work an executor runs).
+
+    Top level so that it pickles. Returns the core's dict: ``position_m``, ``encoder_m``
+    (shape ``(stop - start, n_measurements)``), ``status``, and the ``failed_*`` entries.
+    """
+    return _core.campaign_run(
+        system,
+        np.ascontiguousarray(cycle_reference, dtype=np.float64),
+        np.ascontiguousarray(measure_index, dtype=np.int64),
+        int(start),
+        int(stop),
+        int(seed),
+        int(threads),
+    )
+
+
+def _int_arg(name: str, value: object, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an int, not {type(value).__name__}")
+    v = int(value)
+    if not lo <= v <= hi:
+        raise ConfigError(f"{name} = {v} is invalid: expected an integer in [{lo}, {hi}]")
+    return v
+
+
+def _check_memory(n_trials: int, n_measure: int) -> None:
+    need = 2 * 8 * n_trials * n_measure + n_trials
+    try:
+        avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return
+    if need > avail:
+        raise ConfigError(
+            f"n_trials = {n_trials} is invalid: the positions need {need / 2**30:.1f} GiB "
+            f"but {avail / 2**30:.1f} GiB of memory is available"
+        )
+
+
+class _Bar:
+    """A one-line text progress bar on a stream (no dependency)."""
+
+    def __init__(self, total: int, stream: TextIO | None, label: str) -> None:
+        self.total = total
+        self.stream = stream
+        self.label = label
+        self.t0 = time.perf_counter()
+        self.last = -1
+
+    def update(self, done: int, *, final: bool = False) -> None:
+        if self.stream is None or (done == self.last and not final):
+            return
+        self.last = done
+        frac = min(1.0, done / self.total) if self.total else 1.0
+        filled = round(frac * _BAR_WIDTH)
+        elapsed = time.perf_counter() - self.t0
+        rate = done / elapsed if elapsed > 0 else 0.0
+        self.stream.write(
+            f"\r{self.label} [{'#' * filled}{'.' * (_BAR_WIDTH - filled)}] "
+            f"{done}/{self.total} trials, {elapsed:.1f} s, {rate:.1f} trials/s"
+            + ("\n" if final else "")
+        )
+        self.stream.flush()
+
+
+def _chunks(n_trials: int, chunk_trials: int) -> list[tuple[int, int]]:
+    return [(a, min(a + chunk_trials, n_trials)) for a in range(0, n_trials, chunk_trials)]
+
+
+def _run_local(
+    system: System,
+    cycle: Cycle,
+    bounds: Sequence[tuple[int, int]],
+    seed: int,
+    threads: int,
+    bar: _Bar,
+) -> list[dict[str, Any]]:
+    """Run the chunks one after the other on a worker thread; the calling thread shows the
+    progress and turns Ctrl-C into a stop request."""
+    parts: list[dict[str, Any]] = []
+    error: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            for a, b in bounds:
+                # After a stop request the remaining chunks return at once (NOT_STARTED).
+                parts.append(
+                    _run_chunk(system, cycle.reference_m, cycle.measure_index, a, b, seed, threads)
+                )
+        except BaseException as exc:  # handed to the calling thread
+            error.append(exc)
+
+    _core.campaign_reset()
+    worker = threading.Thread(target=work, name="nanostage-campaign", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(_REFRESH_S)
+            bar.update(_core.campaign_progress())
+    except KeyboardInterrupt:
+        _core.campaign_request_stop()
+        worker.join()
+        raise
+    if error:
+        raise error[0]
+    return parts
+
+
+def _run_executor(
+    system: System,
+    cycle: Cycle,
+    bounds: Sequence[tuple[int, int]],
+    seed: int,
+    threads: int,
+    executor: _Submitter,
+    bar: _Bar,
+) -> list[dict[str, Any]]:
+    futures: list[_Future] = [
+        executor.submit(
+            _run_chunk, system, cycle.reference_m, cycle.measure_index, a, b, seed, threads
+        )
+        for a, b in bounds
+    ]
+    try:
+        while True:
+            done = [f.done() for f in futures]
+            bar.update(sum(b - a for (a, b), d in zip(bounds, done, strict=True) if d))
+            if all(done):
+                break
+            time.sleep(_REFRESH_S)
+        return [f.result() for f in futures]
+    except BaseException:
+        for f in futures:
+            f.cancel()
+        raise
+
+
+def run_campaign(
+    system: System,
+    cycle: Cycle,
+    *,
+    n_trials: int,
+    seed: int = 0,
+    threads: int | None = None,
+    executor: Executor | _Submitter | None = None,
+    chunk_trials: int | None = None,
+    progress: bool = True,
+) -> CampaignResult:
+    """Run ``n_trials`` trials of ``cycle`` on the closed loop of ``system``.
+
+    Parameters
+    ----------
+    system : System
+        The loop; its random effects (stochastic friction, noise, jitter) are drawn anew in
+        every trial.
+    cycle : Cycle
+        The test every trial runs (:func:`~nanostage.cycles.step_cycle`,
+        :func:`~nanostage.cycles.standard_test_cycle`). The axis starts at rest at
+        ``cycle.reference_m[0]``.
+    n_trials : int
+        Number of trials, in ``[1, 2**32]``.
+    seed : int, default 0
+        Campaign seed, in ``[0, 2**64)``; trial ``i`` uses ``stream_seed(seed, i)``.
+    threads : int, optional
+        Threads of the local Rust pool, in ``[1, 1024]``; default: all cores for a local run,
+        1 per chunk with an executor.
+    executor : concurrent.futures.Executor or dask.distributed.Client, optional
+        Runs chunks of trials (:func:`_run_chunk`, picklable) with ``submit``; the results
+        are concatenated in trial order and are identical to a local run.
+    chunk_trials : int, optional
+        Trials per chunk, in ``[1, n_trials]``. Default: all in one call locally,
+        ``ceil(n_trials / 32)`` with an executor.
+    progress : bool, default True
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    CampaignResult
+
+    Raises
+    ------
+    ConfigError
+        Invalid system, cycle or arguments (before any trial runs).
+    KeyboardInterrupt
+        On Ctrl-C: a local campaign is stopped within about a second (the running trials
+        stop within 256 control samples), pending executor chunks are cancelled; partial
+        results are discarded.
+    """
+    if not isinstance(cycle, Cycle):
+        raise TypeError(f"cycle must be a nanostage.cycles.Cycle, not {type(cycle).__name__}")
+    n = _int_arg("n_trials", n_trials, 1, MAX_TRIALS)
+    s = _int_arg("seed", seed, 0, 2**64 - 1)
+    if threads is None:
+        n_threads = 1 if executor is not None else max(1, os.cpu_count() or 1)
+    else:
+        n_threads = _int_arg("threads", threads, 1, MAX_THREADS)
+    if chunk_trials is None:
+        chunk = n if executor is None else max(1, math.ceil(n / 32))
+    else:
+        chunk = _int_arg("chunk_trials", chunk_trials, 1, n)
+    if cycle.n_measurements == 0:
+        raise ConfigError("cycle is invalid: it has no measurement instants")
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError(
+            f"executor must have a submit method (concurrent.futures.Executor or a "
+            f"dask.distributed.Client), not {type(executor).__name__}"
+        )
+    _core.validate_system(system)
+    _check_memory(n, cycle.n_measurements)
+    bounds = _chunks(n, chunk)
+    bar = _Bar(n, sys.stderr if progress else None, "campaign")
+    t0 = time.perf_counter()
+    if executor is None:
+        parts = _run_local(system, cycle, bounds, s, n_threads, bar)
+    else:
+        parts = _run_executor(system, cycle, bounds, s, n_threads, executor, bar)
+    compute_s = time.perf_counter() - t0
+    bar.update(n, final=True)
+    return _assemble(cycle, s, parts, bounds, compute_s)
+
+
+def _assemble(
+    cycle: Cycle,
+    seed: int,
+    parts: Sequence[dict[str, Any]],
+    bounds: Sequence[tuple[int, int]],
+    compute_s: float,
+) -> CampaignResult:
+    failures: list[TrialFailure] = []
+    status_parts = []
+    for (a, _), p in zip(bounds, parts, strict=True):
+        status = np.asarray(p["status"], dtype=np.int8)
+        status_parts.append(status)
+        for trial, t_s, msg, state in zip(
+            p["failed_trial"], p["failed_t_s"], p["failed_message"], p["failed_state"], strict=True
+        ):
+            k = int(trial)
+            failures.append(
+                TrialFailure(
+                    trial=k,
+                    status=TrialStatus(int(status[k - a])),
+                    t_s=float(t_s),
+                    state=tuple(float(x) for x in state),
+                    message=str(msg),
+                )
+            )
+    position = np.concatenate([np.asarray(p["position_m"], dtype=np.float64) for p in parts])
+    encoder = np.concatenate([np.asarray(p["encoder_m"], dtype=np.float64) for p in parts])
+    status_all = np.concatenate(status_parts)
+    for arr in (position, encoder, status_all):
+        arr.flags.writeable = False
+    return CampaignResult(
+        cycle=cycle,
+        seed=seed,
+        position_m=position,
+        encoder_m=encoder,
+        status=status_all,
+        failures=tuple(failures),
+        compute_s=compute_s,
+    )

@@ -1,0 +1,86 @@
+"""The paper's step campaigns: the calibration logic on known objectives, a small end-to-end
+run, and the ``nanostage reproduce`` command with and without ``--campaigns``."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from nanostage.cli import main
+from nanostage.paper_campaigns import (
+    CampaignSettings,
+    _calibrate,
+    markdown,
+    paper_campaigns,
+)
+
+
+def test_calibration_finds_a_bracketed_root() -> None:
+    calls: list[float] = []
+
+    def f(s: float) -> float:
+        calls.append(s)
+        return 1e-5 * s  # 3.19 µm at s = 0.319
+
+    grid = [(s, f(s)) for s in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)]
+    cal = _calibrate(f, grid, 3.19e-6, 1e-6)
+    assert cal["reached"] and cal["bracket"] == [0.3, 0.4]
+    assert cal["spread"] == pytest.approx(0.319, abs=1e-5)
+    # A decreasing objective is bracketed as well.
+    grid = [(s, 1e-5 * (0.5 - s)) for s in (0.0, 0.25, 0.5)]
+    cal = _calibrate(lambda s: 1e-5 * (0.5 - s), grid, 3.19e-6, 1e-6)
+    assert cal["spread"] == pytest.approx(0.181, abs=1e-5)
+
+
+def test_calibration_reports_the_reachable_range_when_out_of_reach() -> None:
+    grid = [(0.0, 0.3e-6), (0.25, 0.1e-6), (0.5, 0.2e-6)]
+    cal = _calibrate(lambda s: math.nan, grid, 3.19e-6, 1e-3)
+    assert not cal["reached"]
+    assert cal["reachable_range_m"] == [0.1e-6, 0.3e-6]
+    assert cal["spread"] == 0.0 and cal["closest_m"] == 0.3e-6
+
+
+def test_small_end_to_end_run() -> None:
+    st = CampaignSettings(
+        repeats=2, dwell_s=0.2, return_s=0.1, n_trials=3, seed=4, spreads=(0.0, 0.3)
+    )
+    res = paper_campaigns(st, threads=1)
+    assert set(res["scan"]) == {"100um", "1000um"}
+    for rows in res["scan"].values():
+        assert [r["spread"] for r in rows] == [0.0, 0.3]
+        for r in rows:
+            assert r["n_failed"] == 0
+            # One target: A↑ = R↑ for every trial, hence for the mean.
+            assert r["A_up"]["mean_m"] == pytest.approx(r["R_up"]["mean_m"], rel=1e-12)
+            assert r["R_up"]["p5_m"] <= r["R_up"]["median_m"] <= r["R_up"]["p95_m"]
+    # With no spread every trial is the same run: no spread of R↑ over trials.
+    r0 = res["scan"]["100um"][0]["R_up"]
+    assert r0["p5_m"] == r0["p95_m"]
+    for name in ("A_up", "R_up", "A_up_pooled", "R_up_pooled"):
+        c = res["calibration"][name]
+        assert c["spread"] in (0.0, 0.3) or 0.0 <= c["spread"] <= 0.3
+        assert c["predicted_1mm_over_paper"] > 0.0
+    assert res["better_reading"].startswith("indistinguishable")
+    md = markdown(res)
+    assert "| 100um | 0.300 |" in md and "Which reading" in md
+    json.dumps(res)
+
+
+def test_reproduce_is_unchanged_by_default_and_runs_campaigns_on_request(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["reproduce", "--out", str(tmp_path / "a"), "--no-plot"]) == 0
+    assert (tmp_path / "a" / "summary.json").exists()
+    assert not (tmp_path / "a" / "campaigns.json").exists()
+    assert "campaign" not in capsys.readouterr().out
+    out = tmp_path / "b"
+    args = ["reproduce", "--out", str(out), "--no-plot", "--campaigns", "--quiet"]
+    assert main([*args, "--campaign-trials", "2", "--threads", "1"]) == 0
+    res = json.loads((out / "campaigns.json").read_text(encoding="utf-8"))
+    assert res["settings"]["n_trials"] == 2
+    assert set(res["calibration"]) == {"A_up", "R_up", "A_up_pooled", "R_up_pooled"}
+    assert (out / "campaigns.md").read_text(encoding="utf-8").startswith("# ISO 230-2")
+    assert "Calibration" in capsys.readouterr().out
