@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SHARED
 from scipy.integrate import solve_ivp
 from scipy.io import savemat
 
@@ -30,6 +29,8 @@ from nanostage.emps import (
     relative_error,
 )
 from nanostage.experiment import Experiment
+
+from conftest import SHARED
 
 EMPS_MAT = SHARED / "data" / "emps" / "DATA_EMPS.mat"
 DT = 1e-3

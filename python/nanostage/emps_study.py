@@ -143,7 +143,8 @@ def output_error_fit(
             fc = values["plant.friction.coulomb_force_n"]
             extra = p.friction.static_force_n - p.friction.coulomb_force_n
             values["plant.friction.static_force_n"] = fc + extra
-        return replace_paths(base, values)
+        built: System = replace_paths(base, values)
+        return built
 
     def residual(u: FloatArray) -> FloatArray:
         count[0] += 1

@@ -85,6 +85,7 @@ class Experiment:
     def window(self, start_s: float, stop_s: float, name: str | None = None) -> Experiment:
         """The samples with ``start_s <= time_s < stop_s``, time kept as is."""
         keep = (self.time_s >= start_s) & (self.time_s < stop_s)
+
         def cut(a: FloatArray | None) -> FloatArray | None:
             return None if a is None else a[keep]
 
