@@ -431,13 +431,14 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         )
         p = sys.plant
         if isinstance(p, ForceDrivePlant):
-            total = p.mass_kg + p.drive_mass_kg
+            total = p.mass_kg
 
             def apply_force(s: System, v: Sequence[float]) -> System:
+                # The drive-side mass is added as a ratio of the table-side mass, which stays
+                # the plant's ``mass_kg`` (so a free nominal mass keeps its meaning).
                 q = s.plant
                 assert isinstance(q, ForceDrivePlant)
-                m_all = q.mass_kg + q.drive_mass_kg
-                plant = replace(q, drive_mass_kg=v[2] * m_all, mass_kg=(1.0 - v[2]) * m_all)
+                plant = replace(q, drive_mass_kg=v[2] * q.mass_kg)
                 return _fx(
                     replace(s, plant=plant),
                     compliance=DriveCompliance(stiffness_n_per_m=v[0], damping_n_s_per_m=v[1]),
@@ -463,11 +464,16 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                         log=True,
                     ),
                     Param(
-                        name="drive_mass_fraction", unit="-", lower=0.05, upper=0.95, initial=0.3
+                        name="drive_mass_ratio",
+                        unit="-",
+                        lower=0.02,
+                        upper=2.0,
+                        initial=0.3,
+                        log=True,
                     ),
                 ),
                 apply=apply_force,
-                signature=signature + f" (total mass {total:.4g} kg split between the sides)",
+                signature=signature + f" (drive-side mass as a ratio of the {total:.4g} kg table)",
             )
         return Candidate(
             name="drive_compliance",

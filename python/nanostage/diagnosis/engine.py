@@ -198,7 +198,12 @@ class FitProblem:
             p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, best.x, strict=True)
         ]
         std = _std_errors(best, self.params)
-        system = self.build(values)
+        try:
+            system = self.build(values)
+        except ValueError as exc:
+            raise ValueError(
+                f"no valid model within the bounds of {[n for n, _ in self.params]}: {exc}"
+            ) from exc
         return Fit(
             values={n: v for (n, _), v in zip(self.params, values, strict=True)},
             std_errors={n: s for (n, _), s in zip(self.params, std, strict=True)},

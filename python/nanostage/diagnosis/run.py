@@ -187,6 +187,8 @@ class Diagnosis:
 
     report: dict[str, Any]
     out_dir: Path | None
+    #: The model with the selected effects at their fitted values (first fold's fit).
+    model: System
 
 
 def _lead(system: System) -> float | None:
@@ -242,8 +244,24 @@ def diagnose(
         for path in m.model.free
     ]
 
+    # A free Coulomb force of a Coulomb + viscous map (Fs = Fc in the nominal model) carries
+    # the static force with it, so that the map stays Coulomb + viscous (Fs ≥ Fc holds).
+    tied = {
+        path: path[: -len("coulomb_force_n")] + "static_force_n"
+        for path in m.model.free
+        if path.endswith(".coulomb_force_n")
+        and _is_coulomb_viscous(nominal, path[: -len(".coulomb_force_n")])
+    }
+
     def set_free(system: System, values: Mapping[str, float]) -> System:
-        return replace_paths(system, dict(values)) if values else system
+        if not values:
+            return system
+        v = dict(values)
+        for fc_path, fs_path in tied.items():
+            if fc_path in v:
+                v[fs_path] = v[fc_path]
+        out: System = replace_paths(system, v)
+        return out
 
     folds = [([by_name[n] for n in f.train], [by_name[n] for n in f.validate]) for f in m.splits()]
     names = [c for c in m.diagnosis.candidates if c in CANDIDATES]
@@ -281,7 +299,16 @@ def diagnose(
         ]
         write_report(report, out_dir, gap_experiments=gap_exps, figures=figures)
         written = Path(out_dir)
-    return Diagnosis(report=report, out_dir=written)
+    return Diagnosis(report=report, out_dir=written, model=out["final"].system)
+
+
+def _is_coulomb_viscous(system: System, parent: str) -> bool:
+    try:
+        obj = get_path(system, parent)
+    except (KeyError, AttributeError, ValueError):
+        return False
+    fs = getattr(obj, "static_force_n", None)
+    return fs is not None and fs == getattr(obj, "coulomb_force_n", None)
 
 
 def _controller_paths(system: System) -> list[str]:
