@@ -71,6 +71,7 @@ class DiagnosisSettings:
     penalty_per_param: float = 0.02
     floor_factor: float = 1.5
     explainable_factor: float = 1.5
+    command_tolerance: float = 1.1
     forward_rounds: int = 3
     forward_top: int = 8
     refine_top: int = 4
@@ -116,15 +117,22 @@ class FitProblem:
         self.scale_m = 1e-7
 
     def residuals(self, system: System, experiments: Sequence[Experiment]) -> list[FloatArray]:
-        """Per-experiment gap (measured − simulated mean reading)."""
+        """Per-experiment gap (measured − simulated mean reading). The command residuals of
+        experiments with a measured command are kept in ``last_command_ms`` (V², None where
+        the experiment has no command)."""
         futures = [
-            self.executor.submit(simulated_mean_reading, self.adapt(system, e), e)
+            self.executor.submit(simulate_reading_and_command, self.adapt(system, e), e)
             for e in experiments
         ]
-        return [
-            gap_residual(e.position_m, f.result(), e.reference_m)
-            for e, f in zip(experiments, futures, strict=True)
-        ]
+        out = []
+        self.last_command_ms: list[float | None] = []
+        for e, f in zip(experiments, futures, strict=True):
+            reading, command = f.result()
+            out.append(gap_residual(e.position_m, reading, e.reference_m))
+            self.last_command_ms.append(
+                None if e.command_v is None else float(np.mean((e.command_v - command) ** 2))
+            )
+        return out
 
     def _vector(self, u: FloatArray) -> FloatArray:
         values = [p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, u, strict=True)]
@@ -313,8 +321,9 @@ def _rms(res: Sequence[FloatArray]) -> float:
     return math.sqrt(float(np.mean([np.mean(r**2) for r in res])))
 
 
-def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
-    """The simulated true position minus half a count, on the experiment's samples."""
+def simulate_reading_and_command(system: System, exp: Experiment) -> tuple[FloatArray, FloatArray]:
+    """The simulated mean reading (true position of the sensor's side minus half a count)
+    and the controller's output in volts, on the experiment's samples."""
     t = system.sample_period_s
     if abs(exp.sample_period_s - t) > 1e-3 * t:
         raise ValueError(
@@ -329,8 +338,15 @@ def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
         command_disturbance_v=exp.disturbance_v,
         initial_position_m=float(exp.position_m[0]) + 0.5 * q,
     )
-    out: FloatArray = tr.position_m - 0.5 * q
-    return out
+    x = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
+    reading: FloatArray = x - 0.5 * q
+    command: FloatArray = tr.command * tr.output_unit_v
+    return reading, command
+
+
+def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
+    """The simulated true position of the sensor's side minus half a count."""
+    return simulate_reading_and_command(system, exp)[0]
 
 
 def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
@@ -373,6 +389,10 @@ class CandidateResult:
     fold_fits: list[Fit]
     #: Mean-square gap per validation experiment (all folds, fold order), m².
     validation_ms: FloatArray
+    #: Mean-square command residual per validation experiment, V² (None: no command).
+    validation_command_ms: list[float | None]
+    #: RMS command residual relative to the model before (None: no measured command).
+    command_ratio: float | None
     validation_rms_m: float
     shrink: float
     p_value: float
@@ -388,6 +408,7 @@ class CandidateResult:
             "shrink": self.shrink,
             "significant": self.significant,
             "p_value": self.p_value,
+            "command_ratio": self.command_ratio,
             "parameters": {
                 n: {"value": v, "std_error": self.fit.std_errors.get(n), "unit": units.get(n)}
                 for n, v in self.fit.values.items()
@@ -429,8 +450,12 @@ class _Ctx:
     st: DiagnosisSettings
     pool: Executor
     adapt: Adapt
+    #: The nominal model the free parameters are set on.
+    nominal: System
     #: Warm start of the free nominal parameters per fold (updated after each round).
     warm: list[dict[str, float]] = field(default_factory=list)
+    #: Effects selected so far, with their fitted values, in order.
+    selected_effects: list[tuple[Candidate, list[float]]] = field(default_factory=list)
 
     @property
     def n_validation(self) -> int:
@@ -442,9 +467,14 @@ class _Ctx:
         nf = len(self.free)
 
         def build(values: Sequence[float]) -> System:
+            # The free nominal parameters first, then the effects selected so far (with
+            # their fitted values), then the candidate: an effect may depend on a free
+            # parameter (e.g. a drive-side mass as a ratio of the table mass).
             s = self.set_free(
-                base, {n: v for (n, _), v in zip(self.free, values[:nf], strict=True)}
+                self.nominal, {n: v for (n, _), v in zip(self.free, values[:nf], strict=True)}
             )
+            for cand, vals in self.selected_effects:
+                s = cand.apply(s, vals)
             return apply_extra(s, values[nf:])
 
         return build
@@ -457,10 +487,12 @@ class _Ctx:
         n_starts: int,
         seed: int,
         screen: bool = False,
-    ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]]]:
+    ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None]]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
-        (concatenated over folds) and the validation residuals per fold."""
+        (concatenated over folds), the validation residuals per fold, and the mean-square
+        command residual of each validation experiment (None without a measured command)."""
         fits, ms, residuals = [], [], []
+        command: list[float | None] = []
         for i, (train, validate) in enumerate(self.folds):
             warm = self.warm[i] if i < len(self.warm) else {}
             free = [
@@ -491,7 +523,8 @@ class _Ctx:
             fits.append(f)
             residuals.append(res)
             ms += [float(np.mean(r**2)) for r in res]
-        return fits, np.array(ms), residuals
+            command += prob.last_command_ms
+        return fits, np.array(ms), residuals, command
 
 
 def diagnose_experiments(
@@ -525,13 +558,14 @@ def diagnose_experiments(
             st=st,
             pool=pool,
             adapt=adapt or (lambda s, e: s),
+            nominal=nominal,
         )
         _progress(
             f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
             f"{len(folds)} fold(s))",
             progress,
         )
-        nominal_fits, base_ms, _ = ctx.fit_and_validate(
+        nominal_fits, base_ms, _, base_cmd = ctx.fit_and_validate(
             nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
         )
         ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
@@ -540,6 +574,7 @@ def diagnose_experiments(
         current = nominal
         current_fits = nominal_fits
         current_ms = base_ms
+        current_cmd = base_cmd
         cands, skipped = applicable_candidates(nominal, candidates)
         pool_names = [c.name for c in cands]
         for rnd in range(st.forward_rounds):
@@ -551,7 +586,7 @@ def diagnose_experiments(
             for i, cand in enumerate(cand_now):
                 t0 = time.perf_counter()
                 try:
-                    r = _judge(cand, current, current_ms, ctx, i, screen=True)
+                    r = _judge(cand, current, current_ms, current_cmd, ctx, i, screen=True)
                 except (ValueError, RuntimeError) as exc:
                     # An invalid combination with the effects already selected, or a
                     # simulation failing at the start values: reported, not fatal.
@@ -574,7 +609,7 @@ def diagnose_experiments(
                 i, cand = by_name[r.effect]
                 t0 = time.perf_counter()
                 try:
-                    results[j] = _judge(cand, current, current_ms, ctx, i)
+                    results[j] = _judge(cand, current, current_ms, current_cmd, ctx, i)
                 except (ValueError, RuntimeError) as exc:
                     skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
                     continue
@@ -593,10 +628,14 @@ def diagnose_experiments(
             if best is None:
                 break
             selected.append(best.effect)
-            current = _with_effect(current, best, cand_now)
+            cand_best = next(c for c in cand_now if c.name == best.effect)
+            values = _effect_values(cand_best, best)
+            ctx.selected_effects.append((cand_best, values))
+            current = cand_best.apply(current, values)
             current_fits = best.fold_fits
             ctx.warm[:] = [_free_values(f, free) for f in best.fold_fits]
             current_ms = best.validation_ms
+            current_cmd = best.validation_command_ms
     return {
         "nominal": nominal_fits[0],
         "nominal_fits": nominal_fits,
@@ -616,20 +655,19 @@ def _free_values(fit: Fit, free: Sequence[tuple[str, Param]]) -> dict[str, float
     return {n: fit.values[n] for n, _ in free if n in fit.values}
 
 
-def _with_effect(current: System, best: CandidateResult, cands: Sequence[Candidate]) -> System:
-    """The current model with the winner's effect at its fitted values (nominal free
-    parameters back at the current model's values: they are refitted with each candidate)."""
-    cand = next(c for c in cands if c.name == best.effect)
+def _effect_values(cand: Candidate, best: CandidateResult) -> list[float]:
+    """The winner's fitted effect values (its integer setting for a delay)."""
     if cand.discrete:
         assert best.setting is not None
-        return cand.apply(current, [best.setting])
-    return cand.apply(current, [best.fit.values[f"{cand.name}.{p.name}"] for p in cand.params])
+        return [float(best.setting)]
+    return [best.fit.values[f"{cand.name}.{p.name}"] for p in cand.params]
 
 
 def _judge(
     cand: Candidate,
     base: System,
     base_ms: FloatArray,
+    base_cmd: Sequence[float | None],
     ctx: _Ctx,
     index: int,
     screen: bool = False,
@@ -640,21 +678,21 @@ def _judge(
     extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
     setting: int | None = None
     if cand.discrete:
-        best: tuple[list[Fit], FloatArray, int] | None = None
+        best: tuple[list[Fit], FloatArray, list[float | None], int] | None = None
         for k in cand.discrete:
 
             def fixed(s: System, v: Sequence[float], k: int = k) -> System:
                 return cand.apply(s, [k])
 
-            fits, ms, _ = ctx.fit_and_validate(base, (), fixed, 1, st.seed + index, screen)
+            fits, ms, _, cmd = ctx.fit_and_validate(base, (), fixed, 1, st.seed + index, screen)
             train = float(np.mean([f.train_rms_m for f in fits]))
             if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
-                best = (fits, ms, k)
+                best = (fits, ms, cmd, k)
         assert best is not None
-        fits, ms, setting = best
+        fits, ms, cmd, setting = best
         k_params = 1
     else:
-        fits, ms, _ = ctx.fit_and_validate(
+        fits, ms, _, cmd = ctx.fit_and_validate(
             base, extra, cand.apply, st.n_starts_candidate, st.seed + index, screen
         )
         k_params = len(cand.params)
@@ -685,16 +723,31 @@ def _judge(
         reasons.append(
             f"mean-square gain {gain:.3g} m² ≤ noise-and-refit floor {floor_gain:.3g} m²"
         )
+    pairs = [(a, b) for a, b in zip(base_cmd, cmd, strict=True) if a is not None and b is not None]
+    command_ratio = (
+        math.sqrt(sum(b for _, b in pairs) / sum(a for a, _ in pairs))
+        if pairs and sum(a for a, _ in pairs) > 0
+        else None
+    )
+    if command_ratio is not None and command_ratio > st.command_tolerance:
+        ok = False
+        reasons.append(
+            f"the measured command (a channel the fit does not use) gets worse: its RMS "
+            f"residual × {command_ratio:.2f}"
+        )
     if ok:
         reasons.append(
             f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}), "
             f"bootstrap p = {p:.3f}"
+            + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
         )
     return CandidateResult(
         effect=cand.name,
         fit=fits[0],
         fold_fits=fits,
         validation_ms=ms,
+        validation_command_ms=cmd,
+        command_ratio=command_ratio,
         validation_rms_m=rms1,
         shrink=shrink,
         p_value=p,

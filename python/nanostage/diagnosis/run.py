@@ -66,6 +66,9 @@ DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
     "GMS returns to the outer branch (non-local memory)",
     frozenset({"amplifier_dynamics", "computation_delay"}): "a step of the command with "
     "the loop open: a delay shifts, a finite bandwidth rounds the response",
+    frozenset({"drive_compliance", "computation_delay"}): "known pulses added to the "
+    "command (as in the EMPS validation run): a delay shifts the response, a flexibility "
+    "filters it and rings at its resonance",
 }
 
 
