@@ -159,3 +159,29 @@ def test_emps_preset_components() -> None:
     assert f.coulomb_force_n * (1 + f.asymmetry) == pytest.approx(20.1440)
     assert f.viscous_n_s_per_m * (1 - f.viscous_asymmetry) == pytest.approx(240.4236)
     assert dataclasses.replace(s).plant == s.plant
+
+
+def test_diagnosis_on_real_data_from_the_naive_model(data: EmpsData, tmp_path: Path) -> None:
+    """The manifest cuts DATA_EMPS into time windows (train 1 and 3, validate 2 and 4); from
+    mass + viscous friction only, the diagnosis first adds Coulomb friction, and the model
+    it selects simulates the measured force better than the naive one."""
+    from nanostage.diagnosis.engine import DiagnosisSettings
+    from nanostage.diagnosis.run import diagnose
+    from nanostage.emps_study import write_manifest
+
+    m = write_manifest(
+        tmp_path / "naive.toml",
+        preset="emps_naive",
+        free={"plant.mass_kg": (50, 200), "plant.friction.viscous_n_s_per_m": (10, 1000)},
+        mat_path=MAT,
+        candidates=["coulomb_viscous", "offset_force", "lead_periodic_friction"],
+    )
+    fast = DiagnosisSettings(n_starts_nominal=1, n_starts_candidate=1, forward_rounds=1)
+    d = diagnose(m, None, settings=fast, progress=False)
+    r = d.report
+    assert [f["validate"] for f in r["folds"]] == [["window2", "window4"]]
+    assert r["selected"] == ["coulomb_viscous"]
+    assert r["gap_after"]["total_rms_m"] < 0.6 * r["gap_before"]["total_rms_m"]
+    fc = r["candidates"][0]["parameters"]["coulomb_viscous.coulomb_force_n"]["value"]
+    assert 15.0 < fc < 26.0  # IDIM-LS: 20.4 N
+    assert yardstick(d.model, data).force < 0.7 * yardstick(presets.emps_naive(), data).force
