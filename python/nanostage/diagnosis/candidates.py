@@ -147,6 +147,21 @@ def _harmonic(kappa: float, c: float, s: float) -> tuple[float, float, float]:
     return (math.hypot(c, s), kappa, math.atan2(-s, c))
 
 
+def _link_params(*, lower_n_per_m: float, initial_n_per_m: float) -> tuple[Param, Param]:
+    """Stiffness (up to 1e9 N/m) and damping of a drive-train link, log-scaled."""
+    return (
+        Param(
+            name="stiffness_n_per_m",
+            unit="N/m",
+            lower=lower_n_per_m,
+            upper=1e9,
+            initial=initial_n_per_m,
+            log=True,
+        ),
+        Param(name="damping_n_s_per_m", unit="N·s/m", lower=1.0, upper=1e5, initial=1e3, log=True),
+    )
+
+
 def _presliding_params(sys: System) -> tuple[Param, ...]:
     """Coulomb force, static excess, presliding stiffness and Stribeck velocity, with bounds
     scaled from the nominal model (the parameters of the LuGre and GMS candidates)."""
@@ -447,22 +462,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             return Candidate(
                 name="drive_compliance",
                 params=(
-                    Param(
-                        name="stiffness_n_per_m",
-                        unit="N/m",
-                        lower=1e4,
-                        upper=1e9,
-                        initial=1e6,
-                        log=True,
-                    ),
-                    Param(
-                        name="damping_n_s_per_m",
-                        unit="N·s/m",
-                        lower=1.0,
-                        upper=1e5,
-                        initial=1e3,
-                        log=True,
-                    ),
+                    *_link_params(lower_n_per_m=1e4, initial_n_per_m=1e6),
                     Param(
                         name="drive_mass_ratio",
                         unit="-",
@@ -477,24 +477,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             )
         return Candidate(
             name="drive_compliance",
-            params=(
-                Param(
-                    name="stiffness_n_per_m",
-                    unit="N/m",
-                    lower=1e5,
-                    upper=1e9,
-                    initial=5e7,
-                    log=True,
-                ),
-                Param(
-                    name="damping_n_s_per_m",
-                    unit="N·s/m",
-                    lower=1.0,
-                    upper=1e5,
-                    initial=1e3,
-                    log=True,
-                ),
-            ),
+            params=_link_params(lower_n_per_m=1e5, initial_n_per_m=5e7),
             apply=lambda s, v: _fx(
                 s, compliance=DriveCompliance(stiffness_n_per_m=v[0], damping_n_s_per_m=v[1])
             ),

@@ -285,20 +285,20 @@ impl Gms {
         if (sum - 1.0).abs() > 1e-9 {
             return Err(ConfigError::new("weights", sum, "weights summing to 1"));
         }
-        check_positive("coulomb_force_n", self.coulomb_force_n, 1e5)?;
-        check_range(
-            "static_force_n",
-            self.static_force_n,
+        check_stribeck_curve(
             self.coulomb_force_n,
-            1e5,
-        )?;
-        check_positive(
-            "stribeck_velocity_m_per_s",
+            self.static_force_n,
             self.stribeck_velocity_m_per_s,
-            10.0,
         )?;
         check_range("viscous_n_s_per_m", self.viscous_n_s_per_m, 0.0, 1e7)
     }
+}
+
+/// The Stribeck curve of a dynamic model: Fc in (0, 1e5], Fs in [Fc, 1e5], vs in (0, 10].
+fn check_stribeck_curve(fc: f64, fs: f64, vs: f64) -> Result<(), ConfigError> {
+    check_positive("coulomb_force_n", fc, 1e5)?;
+    check_range("static_force_n", fs, fc, 1e5)?;
+    check_positive("stribeck_velocity_m_per_s", vs, 10.0)
 }
 
 impl LuGre {
@@ -306,17 +306,10 @@ impl LuGre {
         check_positive("stiffness_n_per_m", self.stiffness_n_per_m, 1e12)?;
         check_range("damping_n_s_per_m", self.damping_n_s_per_m, 0.0, 1e7)?;
         check_range("viscous_n_s_per_m", self.viscous_n_s_per_m, 0.0, 1e7)?;
-        check_positive("coulomb_force_n", self.coulomb_force_n, 1e5)?;
-        check_range(
-            "static_force_n",
-            self.static_force_n,
+        check_stribeck_curve(
             self.coulomb_force_n,
-            1e5,
-        )?;
-        check_positive(
-            "stribeck_velocity_m_per_s",
+            self.static_force_n,
             self.stribeck_velocity_m_per_s,
-            10.0,
         )
     }
 }
