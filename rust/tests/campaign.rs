@@ -278,3 +278,53 @@ fn bad_input_is_an_error_before_any_work() {
     );
     assert_eq!(progress.load(Ordering::Relaxed), 0);
 }
+
+/// A per-trial friction level keeps the rigid plant (scaled friction levels); it must agree
+/// with the component plant at the same level (forced by dropping `axis`) to within the
+/// integrator tolerance, for factors above and below 1.
+#[test]
+fn per_trial_level_on_the_rigid_plant_matches_the_component_plant() {
+    let (r, _) = cycle();
+    let mut levels_seen = Vec::new();
+    for seed in 1u64..=8 {
+        let mut rigid = ExtendedConfig::from_closed_loop(&seed_closed_loop(100e-6));
+        rigid.stochastic = Some(StochasticFriction {
+            level_spread: 0.4,
+            distribution: SpreadDistribution::Normal,
+            within_spread: 0.0,
+            correlation_time_s: 0.02,
+        });
+        rigid.seed = seed;
+        let mut component = rigid;
+        component.axis = None;
+        let a = run_extended(&rigid, &r, KnownInputs::default(), None).unwrap();
+        let b = run_extended(&component, &r, KnownInputs::default(), None).unwrap();
+        // The rigid plant's Dahl force is its third state; the friction record tells the level.
+        let peak = |t: &nanostage::sim::Trace| {
+            t.table_friction_force_n
+                .iter()
+                .fold(0.0_f64, |m, f| m.max(f.abs()))
+        };
+        levels_seen.push(peak(&a) / 30.4);
+        assert!(
+            (peak(&a) - peak(&b)).abs() < 1e-6 * peak(&b),
+            "seed {seed}: friction peaks {} vs {}",
+            peak(&a),
+            peak(&b)
+        );
+        let worst = a
+            .position_m
+            .iter()
+            .zip(&b.position_m)
+            .fold(0.0_f64, |m, (x, y)| m.max((x - y).abs()));
+        assert!(worst < 2e-9, "seed {seed}: positions differ by {worst} m");
+        assert_eq!(a.encoder_counts, b.encoder_counts, "seed {seed}");
+        // The rigid path is the one taken: it does no work while stuck, so far fewer RHS calls.
+        assert!(a.stats.n_rhs < b.stats.n_rhs, "seed {seed}");
+    }
+    // The draws really moved the level both ways (the Dahl force saturates near level·Fc).
+    assert!(
+        levels_seen.iter().any(|&l| l > 1.05) && levels_seen.iter().any(|&l| l < 0.95),
+        "levels {levels_seen:?}"
+    );
+}

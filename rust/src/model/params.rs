@@ -163,6 +163,21 @@ impl DahlFriction {
 }
 
 impl AxisParams {
+    /// The same axis with every friction level (static and Coulomb torque of the motor's
+    /// Stribeck map, Coulomb force of the Dahl model) multiplied by `scale`; viscous terms,
+    /// the Stribeck velocity and the Dahl stiffness are unchanged. This is exactly what the
+    /// component plant's friction level scale does to the same axis.
+    pub fn with_friction_scale(&self, scale: f64) -> Self {
+        if scale == 1.0 {
+            return *self;
+        }
+        let mut p = *self;
+        p.motor_friction.static_torque_nm *= scale;
+        p.motor_friction.coulomb_torque_nm *= scale;
+        p.dahl.coulomb_force_n *= scale;
+        p
+    }
+
     /// Validate every block; the error names the block and the field.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.motor.validate().map_err(|e| e.within("motor"))?;

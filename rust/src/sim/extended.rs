@@ -349,10 +349,13 @@ pub fn run_extended(
     let level = cfg
         .stochastic
         .map_or(1.0, |s| s.draw_level(&mut rng_friction));
-    let rigid_ok = known.force_n.is_empty() && !fluctuating && level == 1.0;
+    // The rigid plant serves whenever the component plant would be the seed axis itself; a
+    // per-trial level factor only scales its friction levels (the same levels the component
+    // plant's `friction_scale` multiplies), so Monte Carlo trials keep the fast path.
+    let rigid_ok = known.force_n.is_empty() && !fluctuating;
     let mut plant = match (&cfg.axis, rigid_ok) {
         (Some(axis), true) if DriveParams::from_axis(axis) == cfg.drive => {
-            let a = Axis::new(*axis).map_err(|e| e.within("plant"))?;
+            let a = Axis::new(axis.with_friction_scale(level)).map_err(|e| e.within("plant"))?;
             let integ = Rodas4::new(cfg.integrator).map_err(|e| e.within("integrator"))?;
             AnyPlant::Rigid(Box::new(Plant::new(a, integ)))
         }
