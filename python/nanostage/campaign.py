@@ -339,24 +339,32 @@ def _check_memory(n_trials: int, n_measure: int) -> None:
 class _Bar:
     """A one-line text progress bar on a stream (no dependency)."""
 
-    def __init__(self, total: int, stream: TextIO | None, label: str) -> None:
+    def __init__(
+        self, total: int, stream: TextIO | None, label: str, *, unit: str = "trials"
+    ) -> None:
         self.total = total
         self.stream = stream
         self.label = label
+        self.unit = unit
         self.t0 = time.perf_counter()
         self.last = -1
+        self.last_write = -math.inf
 
-    def update(self, done: int, *, final: bool = False) -> None:
+    def update(self, done: int, *, final: bool = False, suffix: str = "") -> None:
         if self.stream is None or (done == self.last and not final):
             return
+        now = time.perf_counter()
+        if not final and now - self.last_write < _REFRESH_S:
+            return
         self.last = done
+        self.last_write = now
         frac = min(1.0, done / self.total) if self.total else 1.0
         filled = round(frac * _BAR_WIDTH)
         elapsed = time.perf_counter() - self.t0
         rate = done / elapsed if elapsed > 0 else 0.0
         self.stream.write(
             f"\r{self.label} [{'#' * filled}{'.' * (_BAR_WIDTH - filled)}] "
-            f"{done}/{self.total} trials, {elapsed:.1f} s, {rate:.1f} trials/s"
+            f"{done}/{self.total} {self.unit}, {elapsed:.1f} s, {rate:.1f} {self.unit}/s{suffix}"
             + ("\n" if final else "")
         )
         self.stream.flush()

@@ -105,6 +105,47 @@ def _emps(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tune(args: argparse.Namespace) -> int:
+    from ._core import ConfigError
+    from .tune import Objective, markdown, tune_table1, write_tune_report
+
+    try:
+        overshoot = None if args.overshoot_max_um is None else args.overshoot_max_um * 1e-6
+        if args.objective == "mix":
+            obj = Objective.mix(
+                seconds_per_micrometre=args.seconds_per_um,
+                overshoot_max_m=overshoot,
+                band_counts=args.band_counts,
+            )
+        elif args.objective == "settling":
+            obj = Objective.settling(overshoot_max_m=overshoot, band_counts=args.band_counts)
+        elif args.objective == "accuracy":
+            obj = Objective.accuracy()
+        else:
+            obj = Objective.repeatability()
+        steps = [s * 1e-6 for s in (args.step_um or [100.0, 500.0, 1000.0, 10000.0])]
+        report = tune_table1(
+            steps,
+            objective=obj,
+            level_spread=args.spread,
+            n_trials=args.trials,
+            eval_trials=args.eval_trials,
+            seed=args.seed,
+            popsize=args.popsize,
+            maxiter=args.maxiter,
+            threads=args.threads,
+            progress=not args.quiet,
+            log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+        )
+    except (ConfigError, TypeError) as exc:
+        print(f"nanostage tune: {exc}", file=sys.stderr)
+        return 2
+    files = write_tune_report(args.out, report, plot=not args.no_plot)
+    print(markdown(report))
+    print("wrote " + ", ".join(str(f) for f in files.values()))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``nanostage`` command."""
     parser = argparse.ArgumentParser(prog="nanostage", description=__doc__)
@@ -157,6 +198,45 @@ def main(argv: Sequence[str] | None = None) -> int:
     em.add_argument("--out", default="emps", help="output directory")
     em.add_argument("--mat", default=None, help="DATA_EMPS.mat (default: ../shared)")
     em.set_defaults(func=_emps)
+    tu = sub.add_parser(
+        "tune",
+        help="tune the FPGA PID off-line (robust over stochastic friction) against Table 1",
+    )
+    tu.add_argument(
+        "--step-um",
+        type=float,
+        action="append",
+        help="step size in µm (repeat for several; default: Table 1's 100, 500, 1000, 10000)",
+    )
+    tu.add_argument(
+        "--objective",
+        choices=["mix", "settling", "accuracy", "repeatability"],
+        default="mix",
+        help="mix: settling time p95 + A↑ (default); settling; accuracy (A↑); repeatability (R↑)",
+    )
+    tu.add_argument(
+        "--seconds-per-um",
+        type=float,
+        default=0.1,
+        help="mix: seconds of settling time that weigh as much as 1 µm of A↑ (default 0.1)",
+    )
+    tu.add_argument("--overshoot-max-um", type=float, default=None, help="overshoot bound, µm")
+    tu.add_argument("--band-counts", type=int, default=1, help="settling band, ±counts (1)")
+    tu.add_argument(
+        "--spread", type=float, default=0.2, help="per-trial friction level spread (0.2)"
+    )
+    tu.add_argument("--trials", type=int, default=200, help="trials per candidate (200)")
+    tu.add_argument(
+        "--eval-trials", type=int, default=None, help="held-out trials of the comparison"
+    )
+    tu.add_argument("--popsize", type=int, default=5, help="population multiplier (5)")
+    tu.add_argument("--maxiter", type=int, default=10, help="generations (10)")
+    tu.add_argument("--seed", type=int, default=0, help="seed of the search (0)")
+    tu.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
+    tu.add_argument("--out", default="tune", help="output directory (default: tune)")
+    tu.add_argument("--no-plot", action="store_true", help="skip pareto.png")
+    tu.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    tu.set_defaults(func=_tune)
     args = parser.parse_args(argv)
     return int(args.func(args))
 
