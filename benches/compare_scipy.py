@@ -23,10 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import pid_reference  # noqa: E402
-from scipy_reference import simulate_plant_scipy  # noqa: E402
+import nanostage as ns
 
-import nanostage as ns  # noqa: E402
+import pid_reference
+from scipy_reference import simulate_plant_scipy
 
 STEP_M = 1e-3
 
@@ -41,15 +41,21 @@ def scipy_closed_loop(system: ns.System, reference_m: np.ndarray, method: str, r
     gain = system.output_stage.amplifier_gain
     t_lat = c.latency_ticks / c.clock_hz
     t_rest = c.sample_period_s - t_lat
-    state = {"position_m": 0.0, "velocity_m_per_s": 0.0, "dahl_force_n": 0.0,
-             "current_a": 0.0, "stuck": True}
+    state = {
+        "position_m": 0.0,
+        "velocity_m_per_s": 0.0,
+        "dahl_force_n": 0.0,
+        "current_a": 0.0,
+        "stuck": True,
+    }
     atol = np.array([1e-13, 1e-10, 1e-7, 1e-9]) * (rtol / 1e-10)
     u_held = 0.0
     pos = np.empty(reference_m.size)
 
     def advance(u: float, dt: float) -> None:
-        out = simulate_plant_scipy(params, [u], dt, method=method, rtol=rtol, atol=atol,
-                                   initial=state)
+        out = simulate_plant_scipy(
+            params, [u], dt, method=method, rtol=rtol, atol=atol, initial=state
+        )
         for k in ("position_m", "velocity_m_per_s", "dahl_force_n", "current_a"):
             state[k] = float(out[k][-1])
         state["stuck"] = bool(out["stuck"][-1])
@@ -68,8 +74,9 @@ def scipy_closed_loop(system: ns.System, reference_m: np.ndarray, method: str, r
 
 
 def nanostage_closed_loop(system: ns.System, reference_m: np.ndarray, rtol: float):
-    s = dataclasses.replace(system, integrator=ns.IntegratorOptions(
-        rtol=rtol, atol_position_m=1e-11 * rtol / 1e-6))
+    s = dataclasses.replace(
+        system, integrator=ns.IntegratorOptions(rtol=rtol, atol_position_m=1e-11 * rtol / 1e-6)
+    )
     return ns.simulate(s, reference_m).position_m
 
 
@@ -88,8 +95,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     system = ns.presets.seed(STEP_M)
-    ref = ns.step_reference(STEP_M, duration_s=args.duration,
-                            sample_period_s=system.controller.sample_period_s)
+    ref = ns.step_reference(
+        STEP_M, duration_s=args.duration, sample_period_s=system.controller.sample_period_s
+    )
     tight = nanostage_closed_loop(system, ref, 1e-10)
     rows = []
     for name, run in [
@@ -111,8 +119,11 @@ def main() -> None:
         reps = args.repeats if name.startswith("nanostage") else 1
         wall, _ = timed(lambda rt=rtol, run=run: run(rt), max(reps, 1))
         rows.append((name, rtol, err, wall / args.duration))
-        print(f"{name:18s} rtol {rtol:.0e}  max|x − x_tight| {err:.2e} m  "
-              f"wall per simulated second {wall / args.duration * 1e3:10.2f} ms", flush=True)
+        print(
+            f"{name:18s} rtol {rtol:.0e}  max|x − x_tight| {err:.2e} m  "
+            f"wall per simulated second {wall / args.duration * 1e3:10.2f} ms",
+            flush=True,
+        )
     base = {r[0]: r[3] for r in rows}
     ours = base.get("nanostage RODAS4")
     if ours:

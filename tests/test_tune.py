@@ -297,9 +297,14 @@ def test_cli_writes_the_report(tmp_path, capsys) -> None:
 
 def test_tuning_cycle_dwell_scales_with_the_step() -> None:
     c1 = tuning_cycle(100e-6)
-    c2 = tuning_cycle(10e-3)
-    assert c1.n_measurements == 2 and c2.n_measurements == 2
-    assert np.all(c1.target_m == 100e-6)
+    c2 = tuning_cycle(10e-3, repeats=2)
+    assert c1.n_measurements == 1 and c2.n_measurements == 2
+    assert np.all(c1.target_m == 100e-6) and np.all(c2.target_m == 10e-3)
+    # One step: rest 0.1 s, step, dwell; the cycle ends at the measurement.
+    assert c1.n_samples == c1.measure_index[0] + 1 == 100 + 311
+    assert np.all(c1.reference_m[:100] == 0.0) and np.all(c1.reference_m[100:] == 100e-6)
+    with pytest.raises(ns.ConfigError, match="repeats"):
+        tuning_cycle(100e-6, repeats=0)
     # 0.3 s + 100 s/m · step: 0.31 s and 1.3 s of dwell (one more sample to the measurement).
     w1 = _dense(c1).window_cols[0]
     w2 = _dense(c2).window_cols[0]

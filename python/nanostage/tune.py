@@ -38,7 +38,7 @@ statistic exceeds ``overshoot_max_m``. A failed trial (numerical failure) makes 
 Example::
 
     system = with_friction_spread(presets.seed(100e-6), 0.2)
-    cycle = tuning_cycle(100e-6)
+    cycle = tuning_cycle(100e-6)    # one step per trial, dwell 0.31 s
     res = tune(system, cycle, objective=Objective.mix(), n_trials=200, seed=1)
     res.best.kp, res.best.ki, res.best.kd, res.best.anti_windup
 """
@@ -399,21 +399,41 @@ def with_friction_spread(
 def tuning_cycle(
     step_m: float,
     *,
-    repeats: int = 2,
+    repeats: int = 1,
     dwell_s: float | None = None,
     return_s: float = 0.1,
     sample_period_s: float = 1e-3,
 ) -> Cycle:
-    """Repeated ``step_m`` steps from 0 (:func:`~nanostage.cycles.step_cycle`) with a dwell
-    long enough to settle: by default ``0.3 s + 100 s/m · step_m`` (0.31 s for 100 µm, 0.4 s
-    for 1 mm, 1.3 s for 10 mm: the seed axis slews at about 14 mm/s)."""
+    """``repeats`` unidirectional ``step_m`` steps from 0, each after ``return_s`` at rest,
+    measured at the end of a dwell long enough to settle: by default ``0.3 s + 100 s/m ·
+    step_m`` (0.31 s for 100 µm, 0.4 s for 1 mm, 1.3 s for 10 mm: the seed axis slews at
+    about 14 mm/s).
+
+    With ``repeats >= 2`` this is :func:`~nanostage.cycles.step_cycle`. The default, one step
+    per trial, is that cycle cut after its first measurement: with a per-trial friction draw
+    the trials are the runs that matter (the pooled ISO figures take every trial's step as a
+    run), and a second step at the same draw would double the cost for little information.
+    """
     dwell = 0.3 + 100.0 * float(step_m) if dwell_s is None else dwell_s
-    return step_cycle(
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise _bad("repeats", repeats, "an integer >= 1")
+    full = step_cycle(
         step_m=step_m,
-        repeats=repeats,
+        repeats=max(int(repeats), 2),
         dwell_s=dwell,
         return_s=return_s,
         sample_period_s=sample_period_s,
+    )
+    if repeats >= 2:
+        return full
+    k = int(full.measure_index[0])
+    return Cycle(
+        reference_m=full.reference_m[: k + 1],
+        sample_period_s=full.sample_period_s,
+        measure_index=full.measure_index[:1],
+        target_m=full.target_m[:1],
+        direction=full.direction[:1],
+        run=full.run[:1],
     )
 
 
@@ -563,7 +583,7 @@ def _score(
     if n_failed or not math.isfinite(j):
         j = FAILED_OBJECTIVE
     trial_a = trial_r = math.nan
-    if per_trial:
+    if per_trial and int(np.max(cyc.run)) >= 2:  # a per-trial test needs two runs
         dist = finals.distribution(reading=objective.reading)
         trial_a = float(np.nanmean(dist["accuracy_up_m"]))
         trial_r = float(np.nanmean(dist["repeatability_up_m"]))
