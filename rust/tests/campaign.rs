@@ -287,12 +287,11 @@ fn per_trial_level_on_the_rigid_plant_matches_the_component_plant() {
     let (r, _) = cycle();
     let mut levels_seen = Vec::new();
     for seed in 1u64..=8 {
-        let mut rigid = ExtendedConfig::from_closed_loop(&seed_closed_loop(100e-6));
-        rigid.stochastic = Some(StochasticFriction {
+        let mut rigid = stochastic_config();
+        rigid.stochastic = rigid.stochastic.map(|s| StochasticFriction {
             level_spread: 0.4,
-            distribution: SpreadDistribution::Normal,
             within_spread: 0.0,
-            correlation_time_s: 0.02,
+            ..s
         });
         rigid.seed = seed;
         let mut component = rigid;
