@@ -1,5 +1,6 @@
 """nanostage: an ultra-high-precision positioning axis with friction, a bit-exact emulation
-of its FPGA PID, ISO 230-2 evaluation, and (to come) sim-to-real gap diagnosis.
+of its FPGA PID, ISO 230-2 evaluation and Monte Carlo campaigns, sim-to-real gap diagnosis
+(``nanostage.diagnosis``) and off-line PID tuning (``nanostage.tune``).
 
 Units are SI everywhere and appear in the names (``mass_kg``, ``lead_m``).
 """
