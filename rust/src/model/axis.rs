@@ -54,15 +54,24 @@ impl Axis {
         })
     }
 
-    /// Scales mapping `atol_position_m` to each state's absolute tolerance:
-    /// position 1, velocity 1e3/s (one position tolerance per ms), Dahl force σ,
-    /// current the current that produces that force.
+    /// Scales mapping `atol_position_m` to each state's absolute tolerance: position 1,
+    /// velocity 1e3/s (one position tolerance per ms), Dahl force σ (the force of one
+    /// position tolerance of presliding), and for the current the larger of (a) the current
+    /// that produces that force and (b) the current error whose transient, decaying with the
+    /// electrical time constant τ_e = L/R, moves the table by one position tolerance:
+    /// `δx ≈ δi·(η·k_t/r)·τ_e²/m_eq`. A current error is not sustained (the current relaxes to
+    /// its quasi-static value within a few τ_e), so only its integrated effect on the position
+    /// matters; holding it to (a) alone cost about half of all steps in motion without
+    /// changing the position by more than 1e-11 m (docs/model.md, "Tolerances").
     pub fn state_scales(&self) -> State {
         let p = &self.params;
         let force = p.dahl.stiffness_n_per_m;
-        let current = force * self.transmission_m_per_rad
-            / (self.efficiency * p.motor.torque_constant_nm_per_a);
-        State::new(1.0, 1e3, force, current)
+        let force_per_amp =
+            self.efficiency * p.motor.torque_constant_nm_per_a / self.transmission_m_per_rad;
+        let current_force = force / force_per_amp;
+        let tau_e = p.motor.inductance_h / p.motor.resistance_ohm;
+        let current_transient = self.equivalent_mass_kg / (tau_e * tau_e * force_per_amp);
+        State::new(1.0, 1e3, force, current_force.max(current_transient))
     }
 
     /// Motor current: the state, or the algebraic value when quasi-static.
