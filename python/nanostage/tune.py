@@ -61,7 +61,7 @@ from scipy.optimize import differential_evolution
 
 from . import presets
 from ._core import ConfigError
-from .campaign import CampaignResult, _Bar, run_campaign
+from .campaign import CampaignResult, _Bar, _int_arg, run_campaign
 from .config import AntiWindup, FpgaPid, System
 from .cycles import Cycle, step_cycle
 from .effects import StochasticFriction
@@ -437,14 +437,20 @@ def tuning_cycle(
     )
 
 
-def _with_candidate(system: System, kp: float, ki: float, kd: float, aw: AntiWindup) -> System:
+def _fpga(system: System) -> FpgaPid:
+    """The system's FPGA PID, or a ConfigError (tuning searches the FPGA PID's gains)."""
     ctl = system.controller
     if not isinstance(ctl, FpgaPid):
         raise ConfigError(
             f"system.controller = {type(ctl).__name__} is invalid: expected an FpgaPid "
             "(tuning searches the FPGA PID's gains)"
         )
-    return replace(system, controller=replace(ctl, kp=kp, ki=ki, kd=kd, anti_windup=aw))
+    return ctl
+
+
+def _with_candidate(system: System, kp: float, ki: float, kd: float, aw: AntiWindup) -> System:
+    ctl = replace(_fpga(system), kp=kp, ki=ki, kd=kd, anti_windup=aw)
+    return replace(system, controller=ctl)
 
 
 def _windows(cycle: Cycle) -> list[tuple[int, int]]:
@@ -621,11 +627,7 @@ def evaluate_gains(
 ) -> Candidate:
     """Score one set of gains (default: the system's own) over ``n_trials`` trials of
     ``cycle`` with campaign seed ``seed``: the same draws for any gains."""
-    ctl = system.controller
-    if not isinstance(ctl, FpgaPid):
-        raise ConfigError(
-            f"system.controller = {type(ctl).__name__} is invalid: expected an FpgaPid"
-        )
+    ctl = _fpga(system)
     kp = ctl.kp if kp is None else kp
     ki = ctl.ki if ki is None else ki
     kd = ctl.kd if kd is None else kd
@@ -699,15 +701,6 @@ def pareto_front(
 # --------------------------------------------------------------------------------------------
 
 
-def _int(name: str, value: object, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an int, not {type(value).__name__}")
-    v = int(value)
-    if not lo <= v <= hi:
-        raise _bad(name, v, f"an integer in [{lo}, {hi}]")
-    return v
-
-
 def tune(
     system: System,
     cycle: Cycle,
@@ -777,18 +770,15 @@ def tune(
         raise TypeError(f"objective must be an Objective, not {type(objective).__name__}")
     if not isinstance(space, GainSpace):
         raise TypeError(f"space must be a GainSpace, not {type(space).__name__}")
-    ctl = system.controller
-    if not isinstance(ctl, FpgaPid):
-        raise ConfigError(
-            f"system.controller = {type(ctl).__name__} is invalid: expected an FpgaPid "
-            "(tuning searches the FPGA PID's gains)"
-        )
+    ctl = _fpga(system)
     space.check_format(ctl)
-    n_trials = _int("n_trials", n_trials, 1, 100_000)
-    seed = _int("seed", seed, 0, 2**32 - 1)
-    cseed = seed if campaign_seed is None else _int("campaign_seed", campaign_seed, 0, 2**64 - 1)
-    popsize = _int("popsize", popsize, 4, 100)
-    maxiter = _int("maxiter", maxiter, 1, 10_000)
+    n_trials = _int_arg("n_trials", n_trials, 1, 100_000)
+    seed = _int_arg("seed", seed, 0, 2**32 - 1)
+    cseed = (
+        seed if campaign_seed is None else _int_arg("campaign_seed", campaign_seed, 0, 2**64 - 1)
+    )
+    popsize = _int_arg("popsize", popsize, 4, 100)
+    maxiter = _int_arg("maxiter", maxiter, 1, 10_000)
     tol_v = _finite_nonneg("tol", tol)
     if tol_v > 1.0:
         raise _bad("tol", tol, "a number in [0, 1]")
