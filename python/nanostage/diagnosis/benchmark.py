@@ -48,7 +48,7 @@ from .engine import DiagnosisSettings
 from .run import diagnose
 from .traces import write_trace_csv
 
-__all__ = ["HIDDEN_EFFECTS", "generate_case", "run_benchmark"]
+__all__ = ["DESIGN", "HIDDEN_EFFECTS", "design_reference", "generate_case", "run_benchmark"]
 
 #: Hidden effects drawn by the benchmark ("none": the nominal structure is right).
 HIDDEN_EFFECTS: tuple[str, ...] = (
@@ -67,22 +67,31 @@ ACCEPT: dict[str, set[str]] = {
     "presliding_gms": {"gms", "lugre"},
 }
 
-# (step(s) in m, start in m, dwell before the first move in s, role)
-DESIGN: tuple[tuple[tuple[float, ...], float, float, str], ...] = (
-    ((100e-6,), 2.0e-3, 0.02, "train"),
-    ((-100e-6,), 4.5e-3, 0.5, "validate"),
-    ((500e-6,), 7.0e-3, 0.5, "validate"),
-    ((-500e-6,), 9.3e-3, 0.02, "train"),
-    ((1e-3,), 12.0e-3, 0.02, "train"),
-    ((-1e-3,), 15.1e-3, 0.5, "validate"),
-    ((200e-6, -200e-6), 17.0e-3, 0.02, "train"),
-    ((-200e-6, 200e-6), 19.6e-3, 0.5, "validate"),
-    ((100e-6,), 5.0e-3, 0.02, "train"),
-    ((100e-6,), 5.0e-3, 0.02, "validate"),
-    ((300e-9, 300e-9, 300e-9), 22.3e-3, 1.0, "train"),
-    ((-300e-9, -300e-9, -300e-9), 23.9e-3, 1.0, "validate"),
-)
+#: Time after the last move (and between moves where no dwell is given), s.
 MOVE_S = 0.3
+#: Micro-steps start this far into an encoder count: a start on a count edge lets the
+#: sensor noise flicker the reading, the integrator then preloads the drive during the
+#: dwell and the step breaks away at once, whatever the dwell (no dwell signature).
+MID_COUNT_M = 30e-9
+
+# (steps in m, start in m, dwell before each step in s, role). The micro-steps of three
+# counts follow dwells of 0.05 s to 1.5 s in both the training and the validation set, so
+# that a breakaway force rising with the dwell time shows as breakaway delays that no single
+# static friction level can reproduce.
+DESIGN: tuple[tuple[tuple[float, ...], float, tuple[float, ...], str], ...] = (
+    ((100e-6,), 2.0e-3, (0.02,), "train"),
+    ((-100e-6,), 4.5e-3, (0.5,), "validate"),
+    ((500e-6,), 7.0e-3, (0.5,), "validate"),
+    ((-500e-6,), 9.3e-3, (0.02,), "train"),
+    ((1e-3,), 12.0e-3, (0.02,), "train"),
+    ((-1e-3,), 15.1e-3, (0.5,), "validate"),
+    ((200e-6, -200e-6), 17.0e-3, (0.02, MOVE_S), "train"),
+    ((-200e-6, 200e-6), 19.6e-3, (0.5, MOVE_S), "validate"),
+    ((100e-6,), 5.0e-3, (0.02,), "train"),
+    ((100e-6,), 5.0e-3, (0.02,), "validate"),
+    ((300e-9,) * 4, 22.3e-3 + MID_COUNT_M, (1.5, 0.05, 0.8, 0.1), "train"),
+    ((-300e-9,) * 4, 23.9e-3 + MID_COUNT_M, (0.05, 1.5, 0.1, 0.8), "validate"),
+)
 
 
 def _hidden(name: str, rng: np.random.Generator, base: System) -> tuple[System, dict[str, Any]]:
@@ -167,6 +176,22 @@ def _gains(step_m: float) -> tuple[float, float, float]:
     return presets.table1_gains(best)
 
 
+def design_reference(
+    steps: Sequence[float], start_m: float, dwells_s: Sequence[float], sample_period_s: float = 1e-3
+) -> np.ndarray:
+    """A step sequence: rest at ``start_m`` for ``dwells_s[0]``, step by ``steps[0]``, rest
+    for ``dwells_s[1]``, …, and hold the last position for ``MOVE_S``."""
+    if len(steps) != len(dwells_s):
+        raise ValueError(f"{len(steps)} steps need {len(steps)} dwells, got {len(dwells_s)}")
+    parts = []
+    x = start_m
+    for s, d in zip(steps, dwells_s, strict=True):
+        parts.append(np.full(round(d / sample_period_s), x))
+        x += s
+    parts.append(np.full(round(MOVE_S / sample_period_s), x))
+    return np.concatenate(parts)
+
+
 def generate_case(
     hidden: str, seed: int, out_dir: Path, *, level_spread: float = 0.005
 ) -> tuple[Path, dict[str, Any]]:
@@ -200,29 +225,28 @@ def generate_case(
     truth, info = _hidden(hidden, rng, truth)
     out_dir.mkdir(parents=True, exist_ok=True)
     fc0 = p.dahl.coulomb_force_n
-    ts_lo = max(0.6 * mf.static_torque_nm, mf.coulomb_torque_nm)
+    # The uncertain friction levels are free: the Dahl level and the motor map's static and
+    # Coulomb torques (the truth perturbs all three). Where the bounds overlap, a Coulomb
+    # torque above the static one is an invalid model, which the fit treats as a bad fit.
+    tc0, ts0 = mf.coulomb_torque_nm, mf.static_torque_nm
     lines = [
         "[model]",
         'preset = "seed"',
-        'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.static_torque_nm"]',
+        'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.static_torque_nm",',
+        '        "plant.motor_friction.coulomb_torque_nm"]',
         "",
         "[model.bounds]",
         f'"plant.dahl.coulomb_force_n" = [{0.6 * fc0}, {1.5 * fc0}]',
-        f'"plant.motor_friction.static_torque_nm" = [{ts_lo}, {1.5 * mf.static_torque_nm}]',
+        f'"plant.motor_friction.static_torque_nm" = [{0.8 * ts0}, {1.5 * ts0}]',
+        f'"plant.motor_friction.coulomb_torque_nm" = [{0.7 * tc0}, {1.3 * tc0}]',
         "",
         "[diagnosis]",
         'candidates = "all"',
         f"seed = {seed}",
         "",
     ]
-    for i, (steps, x0, dwell, role) in enumerate(DESIGN):
-        n0 = round(dwell / 1e-3)
-        n_move = round(MOVE_S / 1e-3)
-        ref = np.full(n0 + n_move * len(steps), x0)
-        x = x0
-        for j, s in enumerate(steps):
-            x += s
-            ref[n0 + j * n_move :] = x
+    for i, (steps, x0, dwells, role) in enumerate(DESIGN):
+        ref = design_reference(steps, x0, dwells)
         g = presets.table1_gains(
             max(abs(s) for s in steps)
             if max(abs(s) for s in steps) in (100e-6, 500e-6, 1e-3, 10e-3)
@@ -285,6 +309,10 @@ def run_benchmark(
         rep = d.report
         found = rep["selected"][0] if rep["selected"] else "none"
         ok = found in ACCEPT.get(h, {h})
+        # Found only up to a tie: the truth is among the candidates the report says the
+        # validation data cannot tell from the first selection (not counted in top-1).
+        tied = set(rep.get("indistinguishable", {}).get(found, [])) if found != "none" else set()
+        ok_tie = ok or bool(tied & ACCEPT.get(h, {h}))
         before = rep["gap_before"]["total_rms_m"]
         after = rep["gap_after"]["total_rms_m"]
         floor = rep["noise_floor_rms_m"]
@@ -296,6 +324,8 @@ def run_benchmark(
                 "found": found,
                 "selected": rep["selected"],
                 "correct": ok,
+                "correct_up_to_tie": ok_tie,
+                "tied_with": sorted(tied),
                 "gap_before_rms_m": before,
                 "gap_after_rms_m": after,
                 "noise_floor_rms_m": floor,
@@ -322,6 +352,9 @@ def run_benchmark(
         "cases": cases,
         "seed": seed,
         "top1": float(np.mean([r["correct"] for r in eff])) if eff else math.nan,
+        "top1_up_to_ties": float(np.mean([r["correct_up_to_tie"] for r in eff]))
+        if eff
+        else math.nan,
         "false_alarm_rate": float(np.mean([r["found"] != "none" for r in nulls]))
         if nulls
         else math.nan,
@@ -339,7 +372,9 @@ def run_benchmark(
     md = [
         "# Diagnosis blind benchmark",
         "",
-        f"{cases} cases, seed {seed}. Top-1 {summary['top1']:.0%}, false alarms "
+        f"{cases} cases, seed {seed}. Top-1 {summary['top1']:.0%} (counting a truth the "
+        f"report names as indistinguishable from the first selection: "
+        f"{summary['top1_up_to_ties']:.0%}), false alarms "
         f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.0%} "
         f"(of the gap above the noise floor: {summary['median_explained_fraction']:.0%}), "
         f"median {summary['median_seconds_per_case']:.0f} s per case.",
@@ -353,14 +388,15 @@ def run_benchmark(
         md.append(f"| {h} | " + " | ".join(str(confusion[h][f]) for f in labels) + " |")
     md += [
         "",
-        "| case | hidden | found | selected | gap before [nm] | after [nm] | floor [nm] | "
-        "shrink | explained | time [s] |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| case | hidden | found | tied with | selected | gap before [nm] | after [nm] | "
+        "floor [nm] | shrink | explained | time [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ex = r["explained_fraction"]
         md.append(
-            f"| {r['case']} | {r['hidden']} | {r['found']} | {', '.join(r['selected']) or '—'} "
+            f"| {r['case']} | {r['hidden']} | {r['found']} | {', '.join(r['tied_with']) or '—'} "
+            f"| {', '.join(r['selected']) or '—'} "
             f"| {r['gap_before_rms_m'] * 1e9:.0f} | {r['gap_after_rms_m'] * 1e9:.0f} "
             f"| {r['noise_floor_rms_m'] * 1e9:.0f} | {r['shrink']:.0%} "
             f"| {'—' if ex is None else f'{ex:.0%}'} | {r['seconds']:.0f} |"

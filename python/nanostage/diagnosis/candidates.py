@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 from ..config import ForceDrivePlant, FpgaPid, Plant, System
 from ..effect_names import EFFECT_NAMES
@@ -131,6 +132,13 @@ def _modify_static(system: System, **changes: object) -> System:
         return _fx(system, motor_friction=mods)
     friction = replace(p.friction, **changes)  # type: ignore[arg-type]
     return replace(system, plant=replace(p, friction=friction))
+
+
+def _with_plant(system: System, change: Callable[[Any], Any]) -> System:
+    """``system`` with ``change`` applied to *its own* plant. A candidate's ``apply`` must
+    start from the system it is given (which carries the fitted free parameters), never from
+    the nominal plant the candidate was made from."""
+    return replace(system, plant=change(system.plant))
 
 
 def _lead_m(system: System) -> float:
@@ -341,7 +349,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                     name="rise_n",
                     unit="N",
                     lower=0.01 * base,
-                    upper=3 * base,
+                    upper=10 * base,
                     initial=0.3 * base,
                     log=True,
                 ),
@@ -493,9 +501,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         return Candidate(
             name="motor_inductance",
             params=(),
-            apply=lambda s, v: replace(
-                s,
-                plant=replace(p, motor=replace(p.motor, quasi_static_current=False)),
+            apply=lambda s, v: _with_plant(
+                s, lambda q: replace(q, motor=replace(q.motor, quasi_static_current=False))
             ),
             signature="a lag of the motor current behind the voltage (electrical pole)",
         )
@@ -596,8 +603,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                 params=(
                     Param(name="external_force_n", unit="N", lower=-fc, upper=fc, initial=0.0),
                 ),
-                apply=lambda s, v: replace(
-                    s, plant=replace(p, table=replace(p.table, external_force_n=v[0]))
+                apply=lambda s, v: _with_plant(
+                    s, lambda q: replace(q, table=replace(q.table, external_force_n=v[0]))
                 ),
                 signature="a constant force along the axis (cable, gravity): + and − moves "
                 "differ by a constant force",
@@ -605,7 +612,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         return Candidate(
             name="offset_force",
             params=(Param(name="external_force_n", unit="N", lower=-fc, upper=fc, initial=0.0),),
-            apply=lambda s, v: replace(s, plant=replace(p, external_force_n=v[0])),
+            apply=lambda s, v: _with_plant(s, lambda q: replace(q, external_force_n=v[0])),
             signature="a constant force along the axis: + and − moves differ by a constant force",
         )
 

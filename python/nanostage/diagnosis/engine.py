@@ -53,6 +53,8 @@ __all__ = [
 ]
 
 FloatArray = npt.NDArray[np.float64]
+#: The gap charged for a parameter set whose model is invalid or whose simulation fails, m.
+FAILED_GAP_M = 1e-3
 #: Turns the model into the system of one experiment (its controller gains).
 Adapt = Callable[[System, Experiment], System]
 
@@ -75,6 +77,8 @@ class DiagnosisSettings:
     forward_rounds: int = 3
     forward_top: int = 8
     refine_top: int = 4
+    #: Points of the coarse scan over a candidate's own parameters before its local fits.
+    scan_points: int = 12
     seed: int = 0
     workers: int = 0  #: 0: one per CPU
 
@@ -140,8 +144,15 @@ class FitProblem:
         try:
             res = self.residuals(self.build(values), self.experiments)
         except (RuntimeError, ValueError):
-            # A failed simulation (or an invalid combination) is a very bad fit, not a crash.
-            return np.full(sum(len(e.time_s) for e in self.experiments), 1e-2)
+            # A failed simulation (or an invalid combination, e.g. a Coulomb level above the
+            # static one) is a very bad fit, not a crash: a gap of 1 mm in every sample, far
+            # worse than any valid model (the residuals below are in counts).
+            return np.concatenate(
+                [
+                    np.full(len(e.time_s), FAILED_GAP_M / (self.scale_m * math.sqrt(len(e.time_s))))
+                    for e in self.experiments
+                ]
+            )
         # In counts (well-scaled for the optimiser's tolerances), each experiment weighted by
         # 1/√n so that it contributes its mean square.
         return np.concatenate([r / (self.scale_m * math.sqrt(len(r))) for r in res])
@@ -153,12 +164,16 @@ class FitProblem:
         seed: int,
         n_warm: int = 0,
         prior: Sequence[float] | None = None,
+        scan: int = 0,
     ) -> Fit:
         """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates. The
         first start is every parameter's ``initial``; with ``prior`` (physical values, e.g.
         the preset's values of warm-started parameters) the second start is ``prior``; the
         others draw the parameters after the first ``n_warm`` (which keep their initial,
-        warm values) by Latin hypercube."""
+        warm values) by Latin hypercube. With ``scan`` > 0 (and warm parameters), the gap is
+        first evaluated at ``scan`` Latin-hypercube points of the drawn parameters, and the
+        best of them (if better than the warm start) is fitted first: instead of the warm
+        start when only one start is allowed, else right after it."""
         k = len(self.params)
         self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
         if k == 0:
@@ -180,12 +195,31 @@ class FitProblem:
             if not np.allclose(second, first):
                 starts.append(second)
         n_draw = k - n_warm if k > n_warm else k
+        if scan > 0 and n_warm > 0 and n_draw > 0:
+            # A coarse global look at the drawn (effect) parameters before the local fits:
+            # the closed loop's gap is rugged, and a start far from the right basin can end
+            # in a poor local optimum. The best scanned point replaces the warm start when
+            # it is better, else it becomes the next start.
+            rows = qmc.LatinHypercube(d=n_draw, seed=seed + 7919).random(scan)
+            cands = []
+            for row in rows:
+                u = first.copy()
+                u[k - n_draw :] = 1.0 + row
+                cands.append(u)
+            costs = [float(np.sum(self._vector(u) ** 2)) for u in [first, *cands]]
+            j = int(np.argmin(costs))
+            if j > 0:
+                if n_starts <= 1:
+                    starts[0] = cands[j - 1]
+                else:
+                    starts.insert(1, cands[j - 1])
         if n_starts > len(starts):
             lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - len(starts))
             for row in lhs:
                 u = first.copy()
                 u[k - n_draw :] = 1.0 + row
                 starts.append(u)
+        starts = starts[: max(n_starts, 1)] if scan > 0 else starts
         best: Any = None
         for u0 in starts:
             sol = least_squares(
@@ -518,6 +552,7 @@ class _Ctx:
                 seed,
                 n_warm=len(free) if warm else 0,
                 prior=prior if both else None,
+                scan=self.st.scan_points if params else 0,
             )
             res = prob.residuals(f.system, validate)
             fits.append(f)

@@ -362,8 +362,22 @@ def markdown_report(
         elif isinstance(sel, list | tuple) and sel and all(isinstance(s, Mapping) for s in sel):
             out.append(_records_table(list(sel)))
         elif isinstance(sel, list | tuple):
+            ties = report.get("indistinguishable") or {}
             out.append(
-                "\n".join(f"- `{_md_escape(str(s))}`" for s in sel) + "\n" if sel else "None.\n"
+                "\n".join(
+                    f"- `{_md_escape(str(s))}`"
+                    + (
+                        " — the validation data cannot tell it from "
+                        + ", ".join(f"`{_md_escape(t)}`" for t in ties[s])
+                        + " (see the advice)"
+                        if isinstance(ties, Mapping) and ties.get(s)
+                        else ""
+                    )
+                    for s in sel
+                )
+                + "\n"
+                if sel
+                else "None.\n"
             )
         else:
             out.append(f"{_md_escape(str(sel))}\n")
@@ -379,7 +393,7 @@ def markdown_report(
     if lc:
         out.append("## Limit cycles in hold\n")
         out.append(lc)
-    known = {"gap_before", "gap_after", "candidates", "selected"}
+    known = {"gap_before", "gap_after", "candidates", "selected", "indistinguishable"}
     extra = [
         [_md_escape(str(k)), _fmt(str(k), v)]
         for k, v in report.items()

@@ -44,13 +44,22 @@ from .manifest import Manifest, get_path, load_manifest, replace_paths
 from .report import write_report
 from .segments import segment
 
-__all__ = ["DISTINGUISHING_EXPERIMENT", "Diagnosis", "diagnose", "experiment_advice"]
+__all__ = [
+    "DISTINGUISHING_EXPERIMENT",
+    "Diagnosis",
+    "diagnose",
+    "experiment_advice",
+    "indistinguishable",
+    "ties_of_selected",
+]
 
 #: For pairs of effects that leave similar signatures: the experiment that separates them.
 DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
-    frozenset({"asymmetric_friction", "offset_force"}): "moves in both directions at two "
-    "very different speeds (e.g. 100 µm and 10 mm steps): an offset force is the same at "
-    "every speed, asymmetric friction scales with the friction level",
+    frozenset({"asymmetric_friction", "offset_force"}): "micro-steps of a few counts and "
+    "large steps, each in both directions: an offset force shifts the breakaway (static) "
+    "and the sliding force by the same amount, asymmetric friction by amounts proportional "
+    "to the static and the Coulomb level; or a move with the loop open (a known command "
+    "pulse): an offset force larger than the static friction makes the axis drift",
     frozenset({"backlash", "drive_compliance"}): "a slow reversal: backlash gives lost "
     "motion of a fixed width, a compliance a deflection proportional to the force",
     frozenset({"lead_periodic_friction", "position_random_friction"}): "the same move at "
@@ -82,6 +91,38 @@ def _moves(e: Experiment) -> list[tuple[int, float, float]]:
         if k - 1 > prev or not out:
             out.append((int(k), float(e.time_s[k] - e.time_s[prev]), float(ref[k] - ref[k - 1])))
         prev = int(k)
+    return out
+
+
+def indistinguishable(a: CandidateResult, b: CandidateResult) -> bool:
+    """Whether the validation data cannot tell candidates ``a`` and ``b`` apart: their RMS
+    gaps lie within 25 % of each other and the mean difference of their per-experiment mean
+    squares is within two standard errors (over the validation experiments). With fewer
+    than two validation experiments nothing can be told apart."""
+    d = a.validation_ms - b.validation_ms
+    if len(d) < 2:
+        return True
+    se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
+    close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
+        a.validation_rms_m, b.validation_rms_m
+    )
+    return close and abs(float(np.mean(d))) <= 2.0 * se
+
+
+def ties_of_selected(
+    rounds: Sequence[Sequence[CandidateResult]], selected: Sequence[str]
+) -> dict[str, list[str]]:
+    """For each selected effect, the significant candidates of its round that the
+    validation data cannot tell from it (:func:`indistinguishable`): the selection between
+    them is then a coin toss, and the report says so."""
+    out: dict[str, list[str]] = {}
+    for rnd, name in zip(rounds, selected, strict=False):
+        win = next(r for r in rnd if r.effect == name)
+        out[name] = [
+            r.effect
+            for r in rnd
+            if r.effect != name and r.significant and indistinguishable(win, r)
+        ]
     return out
 
 
@@ -148,14 +189,7 @@ def experiment_advice(
     good = [r for r in results if r.shrink > penalty]
     for i, a in enumerate(good):
         for b in good[i + 1 :]:
-            d = a.validation_ms - b.validation_ms
-            if len(d) < 2:
-                continue
-            se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
-            close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
-                a.validation_rms_m, b.validation_rms_m
-            )
-            if close and abs(float(np.mean(d))) <= 2.0 * se:
+            if indistinguishable(a, b):
                 pair = frozenset({a.effect, b.effect})
                 advice.append(
                     {
@@ -374,6 +408,7 @@ def assemble_report(
         "gap_before": before,
         "candidates": candidates,
         "selected": list(out["selected"]),
+        "indistinguishable": ties_of_selected(rounds, out["selected"]),
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": best_single.effect if best_single else None,
