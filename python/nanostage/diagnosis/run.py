@@ -14,7 +14,8 @@ The report (``report.json``; schema in docs/diagnosis.md) has at least
 ``gap_after``
     the validation gap with the selected effects (same form as ``gap_before``);
 
-plus ``gap_best_single``, ``noise_floor_rms_m``, ``forward_selection``, ``evidence``,
+plus ``indistinguishable`` (selected effect → candidates the validation data cannot tell
+from it), ``gap_best_single``, ``noise_floor_rms_m``, ``forward_selection``, ``evidence``,
 ``advice``, ``skipped``, ``nominal_parameters``, ``unexplained_rms_m`` and ``timing_s``.
 """
 
