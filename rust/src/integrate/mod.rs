@@ -10,7 +10,10 @@
 //! State events (a sign change of [`OdeSystem::event`]) end a segment early; they are
 //! located by the Illinois method on the step size.
 
+mod lu;
 mod rodas;
+
+pub use lu::Lu;
 
 pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats};
 
