@@ -35,8 +35,15 @@ fn sub(a: Stats, b: Stats) -> Stats {
     }
 }
 
-fn config(iso: bool) -> ExtendedConfig {
-    let mut cfg = ExtendedConfig::from_closed_loop(&seed_closed_loop(1e-3));
+fn step_size(args: &[String]) -> f64 {
+    args.first()
+        .and_then(|a| a.strip_prefix("step"))
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1e-3)
+}
+
+fn config(iso: bool, step_m: f64) -> ExtendedConfig {
+    let mut cfg = ExtendedConfig::from_closed_loop(&seed_closed_loop(step_m));
     if iso {
         cfg.stochastic = Some(StochasticFriction {
             level_spread: 0.2,
@@ -61,20 +68,66 @@ fn reference(args: &[String]) -> (bool, Vec<f64>) {
                 .collect();
             (true, r)
         }
-        _ => (
-            false,
-            (0..1000)
-                .map(|k| if k >= 10 { 1e-3 } else { 0.0 })
-                .collect(),
-        ),
+        _ => {
+            let step = step_size(args);
+            let n = if step > 5e-3 { 1500 } else { 1000 };
+            (
+                false,
+                (0..n).map(|k| if k >= 10 { step } else { 0.0 }).collect(),
+            )
+        }
     }
 }
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("accuracy") {
+        let (iso, r) = reference(&args[1..]);
+        let cfg = config(iso, step_size(&args[1..]));
+        let mut tight = cfg;
+        tight.integrator.rtol = 1e-10;
+        tight.integrator.atol_position_m = 1e-14;
+        let a = run_extended(&cfg, &r, KnownInputs::default(), None).expect("run");
+        let b = run_extended(&tight, &r, KnownInputs::default(), None).expect("run");
+        let first = a
+            .encoder_counts
+            .iter()
+            .zip(&b.encoder_counts)
+            .position(|(x, y)| x != y)
+            .unwrap_or(r.len());
+        let worst = a.position_m[..first]
+            .iter()
+            .zip(&b.position_m[..first])
+            .fold(0.0_f64, |m, (x, y)| m.max((x - y).abs()));
+        if std::env::var_os("SHOW_DX").is_some() {
+            for k in (0..first).step_by(1) {
+                let d = (a.position_m[k] - b.position_m[k]).abs();
+                if d > 1e-11 {
+                    println!(
+                        "k={k} dx={d:.2e} v={:.3e} stuck={}",
+                        a.velocity_m_per_s[k], a.stuck[k]
+                    );
+                }
+            }
+        }
+        let differing = a
+            .encoder_counts
+            .iter()
+            .zip(&b.encoder_counts)
+            .filter(|(x, y)| x != y)
+            .count();
+        println!(
+            "default vs tight: max |dx| {worst:.3e} m over the first {first} of {} samples \
+             (counts identical up to there); {differing} samples with another count; \
+             default {:?}",
+            r.len(),
+            a.stats
+        );
+        return;
+    }
     if args.first().map(String::as_str) == Some("bare") {
         let (iso, r) = reference(&args[1..]);
-        let cfg = config(iso);
+        let cfg = config(iso, step_size(&args[1..]));
         let reps: usize = std::env::var("REPS")
             .ok()
             .and_then(|s| s.parse().ok())
@@ -97,7 +150,7 @@ fn main() {
         return;
     }
     let (iso, r) = reference(&args);
-    let cfg = config(iso);
+    let cfg = config(iso, step_size(&args));
     let reference_trace = run_extended(&cfg, &r, KnownInputs::default(), None).expect("run");
     let nanostage::sim::ControllerKind::Fpga { pid: pcfg, output } = cfg.controller else {
         unreachable!()
@@ -130,10 +183,15 @@ fn main() {
         let _ = out.flags & flags::AMPLIFIER_SATURATED;
         let s0 = plant.integrator.stats;
         let stuck0 = plant.mode == Mode::Stuck;
-        plant.advance(u_held, t_n, t_n + lat).expect("advance");
-        let s1 = plant.integrator.stats;
+        let s1 = if u == u_held {
+            plant.integrator.stats
+        } else {
+            plant.advance(u_held, t_n, t_n + lat).expect("advance");
+            plant.integrator.stats
+        };
+        let t_from = if u == u_held { t_n } else { t_n + lat };
         u_held = u;
-        plant.advance(u_held, t_n + lat, t_next).expect("advance");
+        plant.advance(u_held, t_from, t_next).expect("advance");
         let s2 = plant.integrator.stats;
         let main = sub(s2, s1);
         let latd = sub(s1, s0);
