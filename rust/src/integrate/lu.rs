@@ -21,7 +21,7 @@ pub struct Lu<const N: usize> {
 
 impl<const N: usize> Lu<N> {
     /// Factorise `a`. Returns `None` when a pivot is zero (singular matrix).
-    #[inline]
+    #[inline(always)]
     pub fn new(a: &SMatrix<f64, N, N>) -> Option<Self> {
         let mut m = [[0.0; N]; N];
         for (j, col) in m.iter_mut().enumerate() {
@@ -67,7 +67,7 @@ impl<const N: usize> Lu<N> {
     }
 
     /// Solve `A·x = b`.
-    #[inline]
+    #[inline(always)]
     pub fn solve(&self, b: &SVector<f64, N>) -> SVector<f64, N> {
         let mut x = *b;
         for (i, &p) in self.swaps.iter().enumerate() {

@@ -116,6 +116,7 @@ struct Segment<'a> {
 }
 
 impl OdeSystem<STATE_DIM> for Segment<'_> {
+    #[inline(always)]
     fn rhs(&self, y: &State, dy: &mut State) {
         let a = self.axis;
         let p = &a.params;
