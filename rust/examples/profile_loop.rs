@@ -87,33 +87,7 @@ fn main() {
         let mut tight = cfg;
         tight.integrator.rtol = 1e-10;
         tight.integrator.atol_position_m = 1e-14;
-        let loose = match std::env::var("LOOSE_RTOL")
-            .ok()
-            .and_then(|v| v.parse::<f64>().ok())
-        {
-            Some(rt) => {
-                let mut c = cfg;
-                c.integrator.rtol = rt;
-                c
-            }
-            None => cfg,
-        };
-        let a = run_extended(&loose, &r, KnownInputs::default(), None).expect("run");
-        if std::env::var_os("SAVE_LOOSE").is_some() {
-            let text: String = a
-                .position_m
-                .iter()
-                .zip(&a.velocity_m_per_s)
-                .zip(&a.current_a)
-                .map(|((x, v), i)| format!("{x:e} {v:e} {i:e}\n"))
-                .collect();
-            std::fs::write("/tmp/loose_positions.txt", text).expect("write");
-        }
-        if std::env::var_os("SAVE_TIGHT").is_some() {
-            let b = run_extended(&tight, &r, KnownInputs::default(), None).expect("run");
-            let text: String = b.position_m.iter().map(|x| format!("{x:e}\n")).collect();
-            std::fs::write("/tmp/tight_positions.txt", text).expect("write");
-        }
+        let a = run_extended(&cfg, &r, KnownInputs::default(), None).expect("run");
         let b = run_extended(&tight, &r, KnownInputs::default(), None).expect("run");
         let first = a
             .encoder_counts

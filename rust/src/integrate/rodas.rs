@@ -142,6 +142,7 @@ pub struct Rodas4<const N: usize> {
     /// Work counters since construction.
     pub stats: Stats,
     h: f64,
+    first_accepted: Option<(f64, f64)>,
 }
 
 struct StepOut<const N: usize> {
@@ -160,16 +161,8 @@ where
             options,
             stats: Stats::default(),
             h: options.h_init_s,
+            first_accepted: None,
         })
-    }
-
-    /// A fresh integrator of another dimension with the same (already validated) options.
-    pub fn resized<const M: usize>(&self) -> Rodas4<M> {
-        Rodas4 {
-            options: self.options,
-            stats: Stats::default(),
-            h: self.options.h_init_s,
-        }
     }
 
     /// The step size the next [`Self::integrate`] call will try first, s.
@@ -184,6 +177,12 @@ where
         if h_s.is_finite() && h_s > 0.0 {
             self.h = self.h.min(h_s);
         }
+    }
+
+    /// Size and error norm of the first accepted step of the last [`Self::integrate`] call
+    /// (`None` if it accepted none).
+    pub fn first_accepted(&self) -> Option<(f64, f64)> {
+        self.first_accepted
     }
 
     /// One RODAS4 step of size `h` from `y0`, given `f0 = f(y0)` and `jac = J(y0)`.
@@ -282,6 +281,7 @@ where
         let t_eps = 1e-15 * t1.abs().max(1e-9);
         let mut fresh = true;
         let mut last_reject = false;
+        self.first_accepted = None;
         while t1 - t > t_eps {
             if fresh {
                 sys.rhs(y, &mut f0);
@@ -333,6 +333,9 @@ where
                 continue;
             }
             self.stats.n_accepted += 1;
+            if self.first_accepted.is_none() {
+                self.first_accepted = Some((h_try, out.err));
+            }
             // Event check on the accepted step.
             if let (Some(g0), Some(g1)) = (sys.event(y), sys.event(&out.y1)) {
                 if g0 >= 0.0 && g1 < 0.0 {

@@ -1,7 +1,7 @@
 //! The rigid seed axis as a hybrid (stick/slip) ODE.
 use super::params::AxisParams;
 use crate::error::{ConfigError, SimError};
-use crate::integrate::{Lu, OdeSystem, Rodas4, SegmentEnd, Stats};
+use crate::integrate::{OdeSystem, Rodas4, SegmentEnd};
 use nalgebra::{SMatrix, SVector};
 
 /// Dimension of the plant state.
@@ -206,153 +206,6 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
     }
 }
 
-/// A slip segment with the fast electrical mode split off and solved exactly.
-///
-/// With `J0` the Jacobian at the segment start `y0`, `λ` its fast eigenvalue (the electrical
-/// pole, near −R/L) and `φ` its eigenvector, the exact change of variables
-/// `y = ỹ + w(s)`, `w(s) = w0·exp(λ·s)`, `w0 = c·φ`, `s` the time since the start, turns
-/// `y' = f(y)` into `ỹ' = f(ỹ + w(s)) − λ·w(s)`. The amplitude `c` is the fast-mode content of
-/// the start: with `ψ` the left eigenvector, `c = ψᵀ·f(y0)/(λ·ψᵀ·φ)` puts `ỹ(0)` on the slow
-/// manifold of the linearised system (`ψᵀ·f = 0`). The transient a voltage jump excites is
-/// then carried by `w` exactly, and the integrated `ỹ` only sees it through the change of
-/// the Jacobian along the trajectory (`(J(ỹ + w) − J0)·w`), which is small. The state is
-/// `[ỹ, s]` (time as a state makes the system autonomous, so RODAS4 with the exact Jacobian
-/// applies unchanged); the error is controlled on `ỹ`, whose error is the error of `y`
-/// (`w` is exact).
-struct SplitSegment<'a> {
-    seg: Segment<'a>,
-    lambda: f64,
-    w0: State,
-}
-
-type State5 = SVector<f64, 5>;
-const S: usize = 4;
-
-impl SplitSegment<'_> {
-    /// The split-off part at split state `y`: `w(s)`.
-    #[inline(always)]
-    fn w(&self, y: &State5) -> State {
-        self.w0 * (self.lambda * y[S]).exp()
-    }
-
-    /// The physical state at split state `y`.
-    #[inline(always)]
-    fn join(&self, y: &State5) -> State {
-        State::new(y[X], y[V], y[Z], y[I]) + self.w(y)
-    }
-
-    /// An integrator failure with the state it reports mapped back to the physical state.
-    fn physical_error(&self, e: SimError) -> SimError {
-        let join = |state: Vec<f64>| -> Vec<f64> {
-            if state.len() == 5 {
-                self.join(&State5::from_column_slice(&state))
-                    .iter()
-                    .copied()
-                    .collect()
-            } else {
-                state
-            }
-        };
-        match e {
-            SimError::StepSizeTooSmall { t_s, h_s, state } => SimError::StepSizeTooSmall {
-                t_s,
-                h_s,
-                state: join(state),
-            },
-            SimError::SingularMatrix { t_s, state } => SimError::SingularMatrix {
-                t_s,
-                state: join(state),
-            },
-            SimError::NonFinite { t_s, state } => SimError::NonFinite {
-                t_s,
-                state: join(state),
-            },
-            SimError::TooManySteps {
-                t_s,
-                max_steps,
-                state,
-            } => SimError::TooManySteps {
-                t_s,
-                max_steps,
-                state: join(state),
-            },
-            other => other,
-        }
-    }
-
-    /// Split the physical state `y` at the segment start (s = 0).
-    fn split(&self, y: &State) -> State5 {
-        let t = y - self.w0;
-        State5::new(t[X], t[V], t[Z], t[I], 0.0)
-    }
-
-    /// The split of segment `seg` at `y0`: `None` when the fast mode cannot be found (then
-    /// the segment is integrated as it is).
-    fn new<'a>(seg: Segment<'a>, y0: &State) -> Option<SplitSegment<'a>> {
-        let m = &seg.axis.params.motor;
-        let shift = -m.resistance_ohm / m.inductance_h;
-        let mut f0 = State::zeros();
-        let mut j0 = Jac::zeros();
-        seg.rhs(y0, &mut f0);
-        seg.jacobian(y0, &mut j0);
-        let shifted = j0 - Jac::identity() * shift;
-        let lu = Lu::new(&shifted)?;
-        let lu_t = Lu::new(&shifted.transpose())?;
-        let mut phi = State::new(0.0, 0.0, 0.0, 1.0);
-        let mut psi = phi;
-        for _ in 0..3 {
-            phi = lu.solve(&phi);
-            phi /= phi[I];
-            psi = lu_t.solve(&psi);
-            psi /= psi[I];
-        }
-        let pp = psi.dot(&phi);
-        let lambda = psi.dot(&(j0 * phi)) / pp;
-        let c = psi.dot(&f0) / (lambda * pp);
-        let w0 = phi * c;
-        if !(lambda < 0.0 && w0.iter().all(|v| v.is_finite())) {
-            return None;
-        }
-        Some(SplitSegment { seg, lambda, w0 })
-    }
-}
-
-impl OdeSystem<5> for SplitSegment<'_> {
-    #[inline(always)]
-    fn rhs(&self, y: &State5, dy: &mut State5) {
-        let w = self.w(y);
-        let p = State::new(y[X], y[V], y[Z], y[I]) + w;
-        let mut d = State::zeros();
-        self.seg.rhs(&p, &mut d);
-        let d = d - w * self.lambda;
-        dy[X] = d[X];
-        dy[V] = d[V];
-        dy[Z] = d[Z];
-        dy[I] = d[I];
-        dy[S] = 1.0;
-    }
-
-    fn jacobian(&self, y: &State5, jac: &mut SMatrix<f64, 5, 5>) {
-        let w = self.w(y);
-        let p = State::new(y[X], y[V], y[Z], y[I]) + w;
-        let mut j = Jac::zeros();
-        self.seg.jacobian(&p, &mut j);
-        // ∂/∂s of f(ỹ + w(s)) − λ·w(s) is (J − λ·I)·w'(s), w' = λ·w.
-        let col = (j - Jac::identity() * self.lambda) * (w * self.lambda);
-        jac.fill(0.0);
-        for r in 0..4 {
-            for c in 0..4 {
-                jac[(r, c)] = j[(r, c)];
-            }
-            jac[(r, S)] = col[r];
-        }
-    }
-
-    fn event(&self, y: &State5) -> Option<f64> {
-        self.seg.event(&self.join(y))
-    }
-}
-
 /// A running plant: the axis, its state and mode, and the integrator.
 #[derive(Debug, Clone)]
 pub struct Plant {
@@ -365,13 +218,14 @@ pub struct Plant {
     /// The integrator (keeps its step-size warm start and counters).
     pub integrator: Rodas4<STATE_DIM>,
     atol: State,
-    /// The integrator of the split slip segments (its counters are added to `integrator`'s).
-    split: Rodas4<5>,
+    /// Voltage of the last `advance` call (NaN before the first).
+    u_last: f64,
+    /// Error norm per (volt of input jump · s³ of first step) seen after the last jump.
+    jump_error_rate: Option<f64>,
 }
 
-/// Longest first step of a split segment whose split-off mode is not negligible, in time
-/// constants of that mode (see `Plant::integrate_split`).
-const SPLIT_FIRST_STEP_TIME_CONSTANTS: f64 = 10.0;
+/// Error norm the first trial step after an input jump aims at (see `Plant::advance`).
+const JUMP_FIRST_STEP_ERROR: f64 = 0.8;
 
 /// Events at one instant beyond which the mode logic is considered chattering (Zeno guard).
 const MAX_EVENTS_AT_ONE_INSTANT: usize = 4;
@@ -384,9 +238,10 @@ impl Plant {
             axis,
             y: State::zeros(),
             mode: Mode::Stuck,
-            split: integrator.resized::<5>(),
             integrator,
             atol,
+            u_last: f64::NAN,
+            jump_error_rate: None,
         }
     }
 
@@ -445,69 +300,20 @@ impl Plant {
         None
     }
 
-    /// Integrate one slip segment with the fast electrical mode split off (`SplitSegment`).
-    fn integrate_split(
-        &mut self,
-        mode: Mode,
-        u_v: f64,
-        t: f64,
-        t1: f64,
-    ) -> Result<SegmentEnd, SimError> {
-        let axis = self.axis;
-        let seg = Segment {
-            axis: &axis,
-            mode,
-            u_v,
-        };
-        let Some(sys) = SplitSegment::new(seg, &self.y) else {
-            let seg = Segment {
-                axis: &axis,
-                mode,
-                u_v,
-            };
-            return self
-                .integrator
-                .integrate(&seg, t, t1, &mut self.y, &self.atol);
-        };
-        let mut y5 = sys.split(&self.y);
-        // The residual forcing (J(ỹ + w) − J0)·w lives in the first few time constants of
-        // the split-off mode. A first step much longer than that puts every RODAS4 stage
-        // where w has decayed, so neither solution nor error estimate sees it (measured: a
-        // velocity error of ~10 tolerances at a reversal). When w is not negligible (some
-        // component above its absolute tolerance) the first step is held to 10 time
-        // constants, e^−10 of the mode's initial size at its end; then the estimate sees
-        // the forcing and what is left after it is negligible.
-        if (0..STATE_DIM).any(|k| sys.w0[k].abs() > self.atol[k]) {
-            self.split
-                .limit_next_step(SPLIT_FIRST_STEP_TIME_CONSTANTS / -sys.lambda);
-        }
-        let atol5 = State5::new(self.atol[X], self.atol[V], self.atol[Z], self.atol[I], 1.0);
-        let before = self.split.stats;
-        let res = self
-            .split
-            .integrate(&sys, t, t1, &mut y5, &atol5)
-            .map_err(|e| sys.physical_error(e));
-        let after = self.split.stats;
-        self.integrator.stats += Stats {
-            n_rhs: after.n_rhs - before.n_rhs,
-            n_jac: after.n_jac - before.n_jac,
-            n_lu: after.n_lu - before.n_lu,
-            n_accepted: after.n_accepted - before.n_accepted,
-            n_rejected: after.n_rejected - before.n_rejected,
-            n_events: after.n_events - before.n_events,
-        };
-        let end = res?;
-        self.y = sys.join(&y5);
-        Ok(end)
-    }
-
     /// Advance from `t0` to `t1` with the voltage `u_v` held, handling stick/slip events.
     ///
-    /// Slip segments with a dynamic current are integrated with the fast electrical mode
-    /// split off and solved exactly (`SplitSegment`): a jump of the held voltage excites the
-    /// electrical transient (time constant about L/R = 21 µs), which RODAS4 would otherwise
-    /// have to follow with several small steps after every output update.
+    /// A jump of the held voltage excites the electrical transient (time constant L/R), which
+    /// the step-size warm start (the last step of the previous segment, often the largest
+    /// allowed) does not foresee: the first trial steps after a jump would be rejected
+    /// several times. The error of that first step grows about as `|Δu|·h³` (measured on the
+    /// seed axis), so the plant remembers the ratio seen after the last jump and starts the
+    /// segment with the step that ratio predicts to give an error norm of 0.8 (never larger
+    /// than the warm start). Error control itself is unchanged: every accepted step meets
+    /// the tolerance.
     pub fn advance(&mut self, u_v: f64, t0: f64, t1: f64) -> Result<(), SimError> {
+        let jump = (u_v - self.u_last).abs();
+        self.u_last = u_v;
+        let mut at_jump = jump > 0.0;
         let mut t = t0;
         let mut events_here = 0usize;
         let mut t_last_event = f64::NEG_INFINITY;
@@ -532,12 +338,25 @@ impl Plant {
                 mode: self.mode,
                 u_v,
             };
-            let end = if self.axis.params.motor.quasi_static_current {
-                self.integrator
-                    .integrate(&seg, t, t1, &mut self.y, &self.atol)?
-            } else {
-                self.integrate_split(seg.mode, seg.u_v, t, t1)?
-            };
+            let learn = at_jump && t == t0;
+            if learn {
+                if let Some(rate) = self.jump_error_rate {
+                    self.integrator
+                        .limit_next_step((JUMP_FIRST_STEP_ERROR / (rate * jump)).cbrt());
+                }
+            }
+            at_jump = false;
+            let end = self
+                .integrator
+                .integrate(&seg, t, t1, &mut self.y, &self.atol)?;
+            if learn {
+                if let Some((h, err)) = self.integrator.first_accepted() {
+                    let rate = err / (jump * h * h * h);
+                    if rate.is_finite() && rate > 0.0 {
+                        self.jump_error_rate = Some(rate);
+                    }
+                }
+            }
             match end {
                 SegmentEnd::Reached => return Ok(()),
                 SegmentEnd::Event { t_s } => {
