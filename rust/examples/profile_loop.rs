@@ -6,7 +6,13 @@
 //! It replays the loop of `run_extended` (rigid plant, FPGA PID, every effect off) with the
 //! same plant and controller objects, checks that it reproduces `run_extended` bit for bit,
 //! and prints the integrator's work per phase of the motion. `... -- bare step|iso FILE` runs
-//! only `run_extended` once (for `valgrind --tool=callgrind`).
+//! only `run_extended` once (for `valgrind --tool=callgrind`; `REPS=n` repeats it, `REPS=0`
+//! measures the start-up and file-reading cost alone). `... -- accuracy step|iso FILE` runs
+//! the default and a tight (rtol 1e-10, atol 1e-14 m) integrator and prints the largest
+//! position difference up to the first sample where the encoder counts differ (`SHOW_DX=1`
+//! lists it per sample, `LOOSE_RTOL=x` changes the default run's rtol, `SAVE_TIGHT=1` /
+//! `SAVE_LOOSE=1` write the positions to /tmp). `stepX` (e.g. `step5e-4`) is a step of X m
+//! with the Table 1 gains for that size.
 use nanostage::control::{flags, Pid};
 use nanostage::integrate::{Rodas4, Stats};
 use nanostage::model::{Axis, Mode, Plant};
@@ -87,7 +93,33 @@ fn main() {
         let mut tight = cfg;
         tight.integrator.rtol = 1e-10;
         tight.integrator.atol_position_m = 1e-14;
-        let a = run_extended(&cfg, &r, KnownInputs::default(), None).expect("run");
+        let loose = match std::env::var("LOOSE_RTOL")
+            .ok()
+            .and_then(|v| v.parse::<f64>().ok())
+        {
+            Some(rt) => {
+                let mut c = cfg;
+                c.integrator.rtol = rt;
+                c
+            }
+            None => cfg,
+        };
+        let a = run_extended(&loose, &r, KnownInputs::default(), None).expect("run");
+        if std::env::var_os("SAVE_LOOSE").is_some() {
+            let text: String = a
+                .position_m
+                .iter()
+                .zip(&a.velocity_m_per_s)
+                .zip(&a.current_a)
+                .map(|((x, v), i)| format!("{x:e} {v:e} {i:e}\n"))
+                .collect();
+            std::fs::write("/tmp/loose_positions.txt", text).expect("write");
+        }
+        if std::env::var_os("SAVE_TIGHT").is_some() {
+            let b = run_extended(&tight, &r, KnownInputs::default(), None).expect("run");
+            let text: String = b.position_m.iter().map(|x| format!("{x:e}\n")).collect();
+            std::fs::write("/tmp/tight_positions.txt", text).expect("write");
+        }
         let b = run_extended(&tight, &r, KnownInputs::default(), None).expect("run");
         let first = a
             .encoder_counts
