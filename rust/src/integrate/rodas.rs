@@ -245,8 +245,7 @@ where
     ) -> Result<(), SimError> {
         let mut f0 = SVector::<f64, N>::zeros();
         let mut jac = SMatrix::<f64, N, N>::zeros();
-        sys.rhs(y, &mut f0);
-        sys.jacobian(y, &mut jac);
+        sys.rhs_and_jacobian(y, &mut f0, &mut jac);
         self.stats.n_rhs += 1;
         self.stats.n_jac += 1;
         match self.step(sys, y, &f0, &jac, h, atol) {
@@ -284,8 +283,7 @@ where
         self.first_accepted = None;
         while t1 - t > t_eps {
             if fresh {
-                sys.rhs(y, &mut f0);
-                sys.jacobian(y, &mut jac);
+                sys.rhs_and_jacobian(y, &mut f0, &mut jac);
                 self.stats.n_rhs += 1;
                 self.stats.n_jac += 1;
                 fresh = false;

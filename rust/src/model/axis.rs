@@ -115,6 +115,57 @@ struct Segment<'a> {
     u_v: f64,
 }
 
+impl Segment<'_> {
+    /// The slip right-hand side given the motor friction torque `tf` and the Dahl rate `dz`
+    /// at `y`.
+    #[inline(always)]
+    fn slip_rhs(&self, y: &State, tf: f64, dz: f64, dy: &mut State) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let r = a.transmission_m_per_rad;
+        let w = y[V] / r;
+        let i = a.current(y, self.u_v);
+        let f_drive = a.efficiency * (m.torque_constant_nm_per_a * i - tf) / r;
+        dy[X] = y[V];
+        dy[V] = (f_drive - y[Z] - p.table.external_force_n) / a.equivalent_mass_kg;
+        dy[Z] = dz;
+        dy[I] = if m.quasi_static_current {
+            0.0
+        } else {
+            (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w) / m.inductance_h
+        };
+    }
+
+    /// The slip Jacobian given ∂T_f/∂w and the Dahl rate's partial derivatives.
+    #[inline(always)]
+    fn slip_jacobian(&self, dtf_dw: f64, dz_dv: f64, dz_dz: f64, jac: &mut Jac) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let r = a.transmission_m_per_rad;
+        jac.fill(0.0);
+        let meq = a.equivalent_mass_kg;
+        let kt = m.torque_constant_nm_per_a;
+        let di_dv = if m.quasi_static_current {
+            -m.back_emf_v_s_per_rad / (r * m.resistance_ohm)
+        } else {
+            0.0
+        };
+        let df_dv = a.efficiency * (kt * di_dv - dtf_dw / r) / r;
+        jac[(X, V)] = 1.0;
+        jac[(V, V)] = df_dv / meq;
+        jac[(V, Z)] = -1.0 / meq;
+        jac[(Z, V)] = dz_dv;
+        jac[(Z, Z)] = dz_dz;
+        if !m.quasi_static_current {
+            jac[(V, I)] = a.efficiency * kt / (r * meq);
+            jac[(I, V)] = -m.back_emf_v_s_per_rad / (r * m.inductance_h);
+            jac[(I, I)] = -m.resistance_ohm / m.inductance_h;
+        }
+    }
+}
+
 impl OdeSystem<STATE_DIM> for Segment<'_> {
     #[inline(always)]
     fn rhs(&self, y: &State, dy: &mut State) {
@@ -134,19 +185,28 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                 };
             }
             Mode::Slip(d) => {
-                let w = y[V] / r;
-                let (tf, _) = p.motor_friction.torque(w, d);
-                let i = a.current(y, self.u_v);
-                let f_drive = a.efficiency * (m.torque_constant_nm_per_a * i - tf) / r;
-                dy[X] = y[V];
-                dy[V] = (f_drive - y[Z] - p.table.external_force_n) / a.equivalent_mass_kg;
-                dy[Z] = p.dahl.rate(y[V], y[Z], d).0;
-                dy[I] = if m.quasi_static_current {
-                    0.0
-                } else {
-                    (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w)
-                        / m.inductance_h
-                };
+                let (tf, _) = p.motor_friction.torque(y[V] / r, d);
+                let (dz, _, _) = p.dahl.rate(y[V], y[Z], d);
+                self.slip_rhs(y, tf, dz, dy);
+            }
+        }
+    }
+
+    fn rhs_and_jacobian(&self, y: &State, dy: &mut State, jac: &mut Jac) {
+        match self.mode {
+            Mode::Stuck => {
+                self.rhs(y, dy);
+                self.jacobian(y, jac);
+            }
+            Mode::Slip(d) => {
+                // One friction evaluation (an exponential) for both.
+                let p = &self.axis.params;
+                let (tf, dtf_dw) = p
+                    .motor_friction
+                    .torque(y[V] / self.axis.transmission_m_per_rad, d);
+                let (dz, dz_dv, dz_dz) = p.dahl.rate(y[V], y[Z], d);
+                self.slip_rhs(y, tf, dz, dy);
+                self.slip_jacobian(dtf_dw, dz_dv, dz_dz, jac);
             }
         }
     }
@@ -164,27 +224,9 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                 }
             }
             Mode::Slip(d) => {
-                let w = y[V] / r;
-                let (_, dtf_dw) = p.motor_friction.torque(w, d);
-                let meq = a.equivalent_mass_kg;
-                let kt = m.torque_constant_nm_per_a;
-                let di_dv = if m.quasi_static_current {
-                    -m.back_emf_v_s_per_rad / (r * m.resistance_ohm)
-                } else {
-                    0.0
-                };
-                let df_dv = a.efficiency * (kt * di_dv - dtf_dw / r) / r;
-                jac[(X, V)] = 1.0;
-                jac[(V, V)] = df_dv / meq;
-                jac[(V, Z)] = -1.0 / meq;
+                let (_, dtf_dw) = p.motor_friction.torque(y[V] / r, d);
                 let (_, dz_dv, dz_dz) = p.dahl.rate(y[V], y[Z], d);
-                jac[(Z, V)] = dz_dv;
-                jac[(Z, Z)] = dz_dz;
-                if !m.quasi_static_current {
-                    jac[(V, I)] = a.efficiency * kt / (r * meq);
-                    jac[(I, V)] = -m.back_emf_v_s_per_rad / (r * m.inductance_h);
-                    jac[(I, I)] = -m.resistance_ohm / m.inductance_h;
-                }
+                self.slip_jacobian(dtf_dw, dz_dv, dz_dz, jac);
             }
         }
     }
