@@ -10,7 +10,10 @@
 //! State events (a sign change of [`OdeSystem::event`]) end a segment early; they are
 //! located by the Illinois method on the step size.
 
+mod lu;
 mod rodas;
+
+pub use lu::Lu;
 
 pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats};
 
@@ -23,6 +26,17 @@ pub trait OdeSystem<const N: usize> {
     fn rhs(&self, y: &SVector<f64, N>, dy: &mut SVector<f64, N>);
     /// Jacobian `∂f/∂y`, written into `jac`.
     fn jacobian(&self, y: &SVector<f64, N>, jac: &mut SMatrix<f64, N, N>);
+    /// `f(y)` and `∂f/∂y` at the same `y` (a system can share work between them; the results
+    /// must equal those of [`Self::rhs`] and [`Self::jacobian`]).
+    fn rhs_and_jacobian(
+        &self,
+        y: &SVector<f64, N>,
+        dy: &mut SVector<f64, N>,
+        jac: &mut SMatrix<f64, N, N>,
+    ) {
+        self.rhs(y, dy);
+        self.jacobian(y, jac);
+    }
     /// Event function. `None` when the system has no event. An event happens where the value
     /// goes from `≥ 0` at the start of a step to `< 0` at its end.
     fn event(&self, _y: &SVector<f64, N>) -> Option<f64> {

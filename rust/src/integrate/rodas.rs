@@ -1,4 +1,5 @@
 //! RODAS4 with step-size control and event location.
+use super::lu::Lu;
 use super::OdeSystem;
 use crate::error::{check_positive, check_range, ConfigError, SimError};
 use nalgebra::{Const, DimMin, SMatrix, SVector};
@@ -141,6 +142,7 @@ pub struct Rodas4<const N: usize> {
     /// Work counters since construction.
     pub stats: Stats,
     h: f64,
+    first_accepted: Option<(f64, f64)>,
 }
 
 struct StepOut<const N: usize> {
@@ -159,7 +161,28 @@ where
             options,
             stats: Stats::default(),
             h: options.h_init_s,
+            first_accepted: None,
         })
+    }
+
+    /// The step size the next [`Self::integrate`] call will try first, s.
+    pub fn next_step(&self) -> f64 {
+        self.h
+    }
+
+    /// Let the next [`Self::integrate`] call try at most `h_s` first (a caller that knows the
+    /// next segment starts with a transient the warm start does not foresee, e.g. after a jump
+    /// of a held input). Only the first trial step changes: error control is as always.
+    pub fn limit_next_step(&mut self, h_s: f64) {
+        if h_s.is_finite() && h_s > 0.0 {
+            self.h = self.h.min(h_s);
+        }
+    }
+
+    /// Size and error norm of the first accepted step of the last [`Self::integrate`] call
+    /// (`None` if it accepted none).
+    pub fn first_accepted(&self) -> Option<(f64, f64)> {
+        self.first_accepted
     }
 
     /// One RODAS4 step of size `h` from `y0`, given `f0 = f(y0)` and `jac = J(y0)`.
@@ -174,25 +197,25 @@ where
     ) -> Option<StepOut<N>> {
         let w = SMatrix::<f64, N, N>::identity() * (1.0 / (h * GAMMA)) - jac;
         self.stats.n_lu += 1;
-        let lu = w.lu();
+        let lu = Lu::new(&w)?;
         let mut f = SVector::<f64, N>::zeros();
-        let k1 = lu.solve(f0)?;
+        let k1 = lu.solve(f0);
         let y = y0 + k1 * A21;
         sys.rhs(&y, &mut f);
-        let k2 = lu.solve(&(f + k1 * (C21 / h)))?;
+        let k2 = lu.solve(&(f + k1 * (C21 / h)));
         let y = y0 + k1 * A31 + k2 * A32;
         sys.rhs(&y, &mut f);
-        let k3 = lu.solve(&(f + (k1 * C31 + k2 * C32) * (1.0 / h)))?;
+        let k3 = lu.solve(&(f + (k1 * C31 + k2 * C32) * (1.0 / h)));
         let y = y0 + k1 * A41 + k2 * A42 + k3 * A43;
         sys.rhs(&y, &mut f);
-        let k4 = lu.solve(&(f + (k1 * C41 + k2 * C42 + k3 * C43) * (1.0 / h)))?;
+        let k4 = lu.solve(&(f + (k1 * C41 + k2 * C42 + k3 * C43) * (1.0 / h)));
         let y = y0 + k1 * A51 + k2 * A52 + k3 * A53 + k4 * A54;
         sys.rhs(&y, &mut f);
-        let k5 = lu.solve(&(f + (k1 * C51 + k2 * C52 + k3 * C53 + k4 * C54) * (1.0 / h)))?;
+        let k5 = lu.solve(&(f + (k1 * C51 + k2 * C52 + k3 * C53 + k4 * C54) * (1.0 / h)));
         let y = y + k5;
         sys.rhs(&y, &mut f);
         let k6 =
-            lu.solve(&(f + (k1 * C61 + k2 * C62 + k3 * C63 + k4 * C64 + k5 * C65) * (1.0 / h)))?;
+            lu.solve(&(f + (k1 * C61 + k2 * C62 + k3 * C63 + k4 * C64 + k5 * C65) * (1.0 / h)));
         self.stats.n_rhs += 5;
         let y1 = y + k6;
         let rtol = self.options.rtol;
@@ -222,8 +245,7 @@ where
     ) -> Result<(), SimError> {
         let mut f0 = SVector::<f64, N>::zeros();
         let mut jac = SMatrix::<f64, N, N>::zeros();
-        sys.rhs(y, &mut f0);
-        sys.jacobian(y, &mut jac);
+        sys.rhs_and_jacobian(y, &mut f0, &mut jac);
         self.stats.n_rhs += 1;
         self.stats.n_jac += 1;
         match self.step(sys, y, &f0, &jac, h, atol) {
@@ -258,10 +280,10 @@ where
         let t_eps = 1e-15 * t1.abs().max(1e-9);
         let mut fresh = true;
         let mut last_reject = false;
+        self.first_accepted = None;
         while t1 - t > t_eps {
             if fresh {
-                sys.rhs(y, &mut f0);
-                sys.jacobian(y, &mut jac);
+                sys.rhs_and_jacobian(y, &mut f0, &mut jac);
                 self.stats.n_rhs += 1;
                 self.stats.n_jac += 1;
                 fresh = false;
@@ -309,6 +331,9 @@ where
                 continue;
             }
             self.stats.n_accepted += 1;
+            if self.first_accepted.is_none() {
+                self.first_accepted = Some((h_try, out.err));
+            }
             // Event check on the accepted step.
             if let (Some(g0), Some(g1)) = (sys.event(y), sys.event(&out.y1)) {
                 if g0 >= 0.0 && g1 < 0.0 {

@@ -15,11 +15,13 @@ impl StribeckFriction {
         let (e, de_dw) = if span == 0.0 {
             (0.0, 0.0)
         } else if delta == 2.0 {
-            let e = (-q * q).exp();
+            // exp(x) is exactly 0 in f64 for x < −745.2 (below half the smallest subnormal):
+            // skip the call (the common case while slewing, |w| ≫ ws).
+            let e = if q * q > 746.0 { 0.0 } else { (-q * q).exp() };
             (e, -e * 2.0 * q * w.signum() / ws)
         } else {
             let qd = q.powf(delta);
-            let e = (-qd).exp();
+            let e = if qd > 746.0 { 0.0 } else { (-qd).exp() };
             (e, -e * delta * qd / q * w.signum() / ws)
         };
         let t = d * (self.coulomb_torque_nm + span * e) + self.viscous_nm_s_per_rad * w;

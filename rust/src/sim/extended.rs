@@ -521,10 +521,16 @@ pub fn run_extended(
                 .push((x_t / i.resolution_m).round() * i.resolution_m + i.noise_std_m * g);
         }
         let t_update = t_n + latency_s;
-        plant.advance(&inp, t_n, t_update)?;
+        let inp_new = Inputs { u_v: u_new, ..inp };
+        if inp_new == inp && matches!(plant, AnyPlant::Rigid(_)) {
+            // The update leaves the held input as it is (e.g. at the voltage limit): the
+            // plant's ODE is the same on both sides of the update instant, so one segment.
+            plant.advance(&inp, t_n, times[k + 1])?;
+        } else {
+            plant.advance(&inp, t_n, t_update)?;
+            plant.advance(&inp_new, t_update, times[k + 1])?;
+        }
         u_held = u_new;
-        let inp_new = Inputs { u_v: u_held, ..inp };
-        plant.advance(&inp_new, t_update, times[k + 1])?;
     }
     tr.stats = plant.stats();
     Ok(tr)
