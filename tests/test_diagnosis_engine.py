@@ -189,6 +189,29 @@ def test_noise_floor_sees_quantisation_noise_and_repeats() -> None:
     assert 2e-7 < floor < 4e-7  # white noise 2e-7, repeats differ by √2·2e-7
 
 
+def test_noise_floor_ignores_the_phase_of_a_limit_cycle_in_repeats() -> None:
+    """Two repeats that hunt around the target with the same amplitude but another phase are
+    not scattered in the gap's sense (holds are compared as sorted values), so the floor
+    stays at the quantisation level; a different amplitude still counts."""
+    q = 1e-7
+    t = np.arange(600)
+    ref = np.where(t >= 100, 1e-4, 0.0)
+    ramp = np.clip((t - 100) / 50, 0, 1) * 1e-4
+
+    def run(phase: float, amp: float) -> Experiment:
+        hunt = np.where(t >= 150, amp * np.sign(np.sin(2 * np.pi * t / 30 + phase)), 0.0)
+        x = np.floor((ramp + hunt) / q) * q
+        return Experiment(name=f"r{phase}", time_s=t * 1e-3, reference_m=ref, position_m=x)
+
+    same = noise_floor_m([run(0.0, 4e-7), run(1.7, 4e-7)], q)
+    # Sample by sample the two differ by 8e-7 m in about half the hold: ≈ 3.5e-7 m of
+    # scatter. As distributions they differ only in the few samples the phase shifts
+    # between the ends of the hold.
+    assert same < 0.6e-7
+    other = noise_floor_m([run(0.0, 4e-7), run(1.7, 1e-6)], q)
+    assert other > 2e-7
+
+
 def _case(tmp_path: Path, effects: Effects, seed: int) -> Path:
     """Four seed-axis experiments (both directions), two train, two validate."""
     truth = dc.replace(

@@ -386,7 +386,8 @@ def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
 def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
     """The gap a perfect model would leave, m: quantisation ``q/√12`` plus the white sensor
     noise estimated from the second differences of the measured readings where the
-    reference is at rest, plus the spread of repeated experiments (same reference), if any."""
+    reference is at rest, raised to the spread of repeated experiments (same reference), if
+    any. The spread of two repeats is measured with :func:`gap_residual`, as the gap is."""
     noise_var = []
     for e in experiments:
         rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
@@ -407,7 +408,10 @@ def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
             da = a.position_m - a.position_m[0]
             db = b.position_m - b.position_m[0]
             if np.allclose(np.diff(a.reference_m), np.diff(b.reference_m), atol=count_m / 10):
-                spreads.append(float(np.mean((da - db) ** 2)) / 2.0)
+                # Measured like the gap itself: sample by sample, but in holds as sorted
+                # values, so a limit cycle's phase (which no model predicts) is not scatter.
+                r = gap_residual(da, db, a.reference_m - a.position_m[0])
+                spreads.append(float(np.mean(r**2)) / 2.0)
     if spreads:
         var = max(var, float(np.median(spreads)))
     return math.sqrt(var)
