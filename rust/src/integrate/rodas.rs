@@ -308,7 +308,7 @@ where
             let fac = if out.err == 0.0 {
                 6.0
             } else {
-                (0.9 * out.err.powf(-0.25)).clamp(0.2, 6.0)
+                (0.9 / out.err.sqrt().sqrt()).clamp(0.2, 6.0)
             };
             if out.err > 1.0 {
                 self.stats.n_rejected += 1;
