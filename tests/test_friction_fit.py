@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from nanostage import ConfigError, DahlFriction
-from nanostage.effects import Gms, LuGre, StaticFrictionMap
+from nanostage.effects import Gms, LuGre, StaticFrictionMap, lead_periodic_friction
 from nanostage.friction import FrictionModel, friction_response
 from nanostage.friction_fit import (
     MODELS,
@@ -27,6 +27,7 @@ from nanostage.friction_fit import (
     compare_models,
     fit_friction,
     gms_family,
+    lead_family,
 )
 
 FC_N = 10.0
@@ -362,7 +363,7 @@ def test_compare_progress_counts_all_starts() -> None:
 
 # ----- registry -------------------------------------------------------------------------------
 
-UNIT_SUFFIXES = ("_n", "_n_per_m", "_m_per_s", "_n_s_per_m")
+UNIT_SUFFIXES = ("_n", "_n_per_m", "_m_per_s", "_n_s_per_m", "_s")
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
@@ -497,3 +498,86 @@ def test_recovers_gms3() -> None:
     for name, true in (("static_excess_n", 5.0), ("stribeck_velocity_m_per_s", 1e-3)):
         assert abs(fit.parameters[name] - true) < 4 * fit.std_errors[name], name
     assert fit.rms_holdout_n == pytest.approx(NOISE_N, rel=0.15)
+
+
+# ----- frictional memory and lead-periodic friction -----------------------------------------
+
+
+def test_recovers_frictional_memory_and_selects_it_over_the_plain_map() -> None:
+    """A Stribeck map whose Stribeck term lags the velocity by 10 ms: the memory family
+    recovers the lag (and the levels), and the comparison prefers it to the plain map."""
+    t, x, v = motion(fs_hz=100.0, reps=2, seed=4)
+    truth = StaticFrictionMap(
+        static_force_n=15.0,
+        coulomb_force_n=FC_N,
+        viscous_n_s_per_m=300.0,
+        stribeck_velocity_m_per_s=1e-3,
+        memory_lag_s=0.01,
+    )
+    f = friction_response(truth, t, x, v)
+    data = FrictionData(t, x, v, f + np.random.default_rng(5).normal(0.0, NOISE_N, f.size))
+    comp = compare_models(data, ("stribeck", "stribeck_memory"), n_starts=2, holdout=0.5)
+    assert comp.best.model == "stribeck_memory"
+    fit = comp["stribeck_memory"]
+    lag, se = fit.parameters["memory_lag_s"], fit.std_errors["memory_lag_s"]
+    assert fit.parameter_status["memory_lag_s"] == "ok"
+    assert abs(lag - 0.01) < max(4 * se, 2e-4), (lag, se)
+    assert fit.parameters["coulomb_force_n"] == pytest.approx(FC_N, rel=0.02)
+    assert fit.rms_holdout_n == pytest.approx(NOISE_N, rel=0.2)
+    assert comp["stribeck"].rms_holdout_n > 3 * fit.rms_holdout_n
+
+
+def _shuttle(
+    speed_m_per_s: float = 5e-3, travel_m: float = 8e-3, fs_hz: float = 500.0, strokes: int = 4
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Strokes of ``travel_m`` back and forth at about ``speed`` (smooth ends), over several
+    screw leads; samples half a period off the velocity zeros."""
+    n = round(travel_m / speed_m_per_s * fs_hz)
+    k = (np.arange(n) + 0.5) / n
+    ts, vs = [], []
+    for j in range(strokes):
+        ts.append((j * n + np.arange(n) + 0.5) / fs_hz)
+        vs.append((-1.0) ** j * speed_m_per_s * np.sin(np.pi * k) ** 0.2)
+    t, v = np.concatenate(ts), np.concatenate(vs)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    return t, x, v
+
+
+def test_recovers_lead_periodic_friction_and_selects_it() -> None:
+    """Stribeck friction modulated by 20 % with the 2 mm lead (phase 0.7 rad): the lead
+    family recovers amplitude and phase, the plain map loses on held-out strokes."""
+    t, x, v = _shuttle()
+    base = StaticFrictionMap(
+        static_force_n=15.0,
+        coulomb_force_n=FC_N,
+        viscous_n_s_per_m=300.0,
+        stribeck_velocity_m_per_s=1e-3,
+    )
+    pf = lead_periodic_friction(side="table", lead_m=2e-3, amplitudes=(0.2,), phases_rad=(0.7,))
+    f = friction_response(base, t, x, v, position_friction=pf)
+    data = FrictionData(t, x, v, f + np.random.default_rng(6).normal(0.0, NOISE_N, f.size))
+    fam = lead_family(2e-3)
+    comp = compare_models(data, ("stribeck", fam), n_starts=3)
+    assert comp.best.model == "stribeck_lead1"
+    fit = comp["stribeck_lead1"]
+    c, s = fit.parameters["cos_amplitude[0]"], fit.parameters["sin_amplitude[0]"]
+    assert math.hypot(c, s) == pytest.approx(0.2, abs=0.005)
+    assert math.atan2(-s, c) == pytest.approx(0.7, abs=0.03)
+    assert fit.position_friction is not None
+    # predict() carries the fitted modulation: it reproduces the noise-free force.
+    assert np.sqrt(np.mean((fit.predict(data) - f) ** 2)) < 0.3 * NOISE_N
+    assert comp["stribeck"].rms_holdout_n > 5 * fit.rms_holdout_n
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"lead_m": 0.0}, "lead_m = 0.0 is invalid"),
+        ({"lead_m": math.nan}, "lead_m = nan is invalid"),
+        ({"lead_m": 2e-3, "harmonics": 0}, "harmonics = 0 is invalid"),
+        ({"lead_m": 2e-3, "harmonics": 5}, "harmonics = 5 is invalid"),
+    ],
+)
+def test_lead_family_rejects_bad_arguments(kwargs: dict[str, float], match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        lead_family(**kwargs)  # type: ignore[arg-type]

@@ -8,14 +8,19 @@ The model evaluation is :func:`nanostage.friction.friction_response`: the Rust c
 the component along the measured motion (linear interpolation of the velocity between
 samples, internal states from rest at the first sample) and returns its force. The models
 integrate the *velocity* channel; the position enters only through position-dependent
-friction, which is not fitted here. Give a velocity consistent with the position
+friction (the lead families). Give a velocity consistent with the position
 (:meth:`FrictionData.from_position` differentiates the position).
 
 Model families (:data:`MODELS`, by stable name)
     ``coulomb_viscous`` (2), ``stribeck`` (4, Gaussian shape δ = 2), ``stribeck_shape`` (5,
     δ fitted), ``stribeck_asymmetric`` (5, δ = 2, direction asymmetry), ``dahl`` (3),
-    ``lugre`` (6), ``gms3`` (9) and ``gms6`` (15); :func:`gms_family` makes a GMS with any
-    number of elements in [1, 8]. Each family lists its parameters (SI names and units),
+    ``lugre`` (6), ``stribeck_memory`` (5, frictional memory: the Stribeck term follows the
+    velocity lagged by ``memory_lag_s``), ``gms3`` (9) and ``gms6`` (15); :func:`gms_family`
+    makes a GMS with any number of elements in [1, 8], :func:`lead_family` a Stribeck map
+    modulated with a given screw lead (``stribeck_lead<h>``, cos/sin amplitude per harmonic).
+    Rising static friction with dwell time is not identifiable here: along a prescribed
+    motion a static map's force at rest is set by the rest of the system, so the breakaway
+    force never enters the record's model force (it needs a force-driven breakaway test). Each family lists its parameters (SI names and units),
     default bounds scaled from the data (:class:`DataScales`) and a ``build(theta)`` that
     returns the component. Scale parameters (stiffnesses, Stribeck velocity, LuGre damping)
     are fitted in log space; forces and coefficients that may be 0 are fitted linearly. The
@@ -73,7 +78,7 @@ from scipy.stats import qmc
 
 from ._core import ConfigError, SimulationError
 from .config import DahlFriction, IntegratorOptions
-from .effects import Gms, LuGre, StaticFrictionMap
+from .effects import Gms, LuGre, PositionFriction, StaticFrictionMap
 from .friction import FrictionModel, friction_response
 
 __all__ = [
@@ -90,6 +95,7 @@ __all__ = [
     "compare_models",
     "fit_friction",
     "gms_family",
+    "lead_family",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -303,6 +309,10 @@ class ModelFamily:
     parameters: tuple[Parameter, ...]
     builder: Callable[[FloatArray], FrictionModel] = field(repr=False)
     bounds_rule: Callable[[DataScales], dict[str, tuple[float, float]]] = field(repr=False)
+    #: Position-dependent modulation of the levels for a parameter vector (None: none).
+    position_builder: Callable[[FloatArray], PositionFriction] | None = field(
+        default=None, repr=False
+    )
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -324,6 +334,12 @@ class ModelFamily:
             )
         return self.builder(th)
 
+    def position(self, theta: Sequence[float] | FloatArray) -> PositionFriction | None:
+        """The position-dependent modulation for ``theta`` (None for families without)."""
+        if self.position_builder is None:
+            return None
+        return self.position_builder(np.asarray(theta, dtype=np.float64))
+
     def default_bounds(self, data: FrictionData | DataScales) -> dict[str, tuple[float, float]]:
         """Default ``{name: (lower, upper)}`` bounds scaled from the data."""
         scales = data if isinstance(data, DataScales) else DataScales.from_data(data)
@@ -341,6 +357,13 @@ _ASYM = Parameter("asymmetry", "1", False, "direction asymmetry a: F·(1 ± a)")
 _SIGMA = Parameter("stiffness_n_per_m", "N/m", True, "presliding (bristle) stiffness σ0")
 _DAHL_N = Parameter("exponent", "1", False, "Dahl shape exponent n")
 _SIGMA1 = Parameter("damping_n_s_per_m", "N·s/m", True, "LuGre micro-damping σ1")
+_LAG = Parameter(
+    "memory_lag_s", "s", True, "frictional memory: lag of the Stribeck term behind the velocity"
+)
+#: Bounds of the memory lag, s (frictional memory is milliseconds to tens of ms).
+MEMORY_LAG_BOUNDS_S = (1e-4, 0.1)
+#: Bounds of a lead-periodic harmonic's cos/sin amplitude (relative modulation).
+LEAD_AMPLITUDE_BOUNDS = (-0.5, 0.5)
 
 
 def _force_bounds(s: DataScales, n: int = 1) -> tuple[float, float]:
@@ -389,7 +412,13 @@ def _family(
 
 
 def _static(
-    fc: float, dfs: float, fv: float, vs: float = 1e-3, delta: float = 2.0, asym: float = 0.0
+    fc: float,
+    dfs: float,
+    fv: float,
+    vs: float = 1e-3,
+    delta: float = 2.0,
+    asym: float = 0.0,
+    lag_s: float | None = None,
 ) -> StaticFrictionMap:
     return StaticFrictionMap(
         static_force_n=fc + dfs,
@@ -398,6 +427,66 @@ def _static(
         stribeck_velocity_m_per_s=vs,
         stribeck_exponent=delta,
         asymmetry=asym,
+        memory_lag_s=lag_s,
+    )
+
+
+def _stribeck_memory() -> ModelFamily:
+    """Stribeck map whose Stribeck term follows the velocity lagged by ``memory_lag_s``."""
+    params = (_FC, _DFS, _VS, _FV, _LAG)
+
+    def rule(s: DataScales) -> dict[str, tuple[float, float]]:
+        b = _common_bounds(s)
+        return {p.name: b[p.name] for p in params[:4]} | {_LAG.name: MEMORY_LAG_BOUNDS_S}
+
+    return ModelFamily(
+        "stribeck_memory",
+        "static Stribeck map (δ = 2) with frictional memory (lagged Stribeck term)",
+        params,
+        lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2), lag_s=_f(th, 4)),
+        rule,
+    )
+
+
+def lead_family(lead_m: float, harmonics: int = 1) -> ModelFamily:
+    """Stribeck map (δ = 2) whose levels are modulated along the travel with the screw lead:
+    ``1 + Σ_k [c_k·cos(kκx) + s_k·sin(kκx)]``, ``κ = 2π/lead_m``, harmonics ``k = 1..harmonics``
+    (1–4). The lead is a design value, not fitted; the ``cos_amplitude[k]``/``sin_amplitude[k]``
+    are (relative, in [−0.5, 0.5]). Fit on a record that travels several leads."""
+    if not (isinstance(lead_m, float | int) and math.isfinite(lead_m) and lead_m > 0):
+        raise ConfigError(f"lead_m = {lead_m!r} is invalid: expected a positive length in m")
+    if not (isinstance(harmonics, int) and 1 <= harmonics <= 4):
+        raise ConfigError(f"harmonics = {harmonics!r} is invalid: expected an integer in [1, 4]")
+    kappa = 2.0 * math.pi / float(lead_m)
+    harm = tuple(
+        Parameter(f"{part}_amplitude[{k}]", "1", False, f"{part} amplitude of harmonic {k + 1}")
+        for k in range(harmonics)
+        for part in ("cos", "sin")
+    )
+    params = (_FC, _DFS, _VS, _FV, *harm)
+
+    def rule(s: DataScales) -> dict[str, tuple[float, float]]:
+        b = _common_bounds(s)
+        return {p.name: b[p.name] for p in params[:4]} | {
+            p.name: LEAD_AMPLITUDE_BOUNDS for p in harm
+        }
+
+    def position(th: FloatArray) -> PositionFriction:
+        terms = []
+        for k in range(harmonics):
+            c, sn = float(th[4 + 2 * k]), float(th[5 + 2 * k])
+            # c·cos θ + s·sin θ = a·cos(θ + φ) with a = hypot(c, s), φ = atan2(−s, c).
+            terms.append((math.hypot(c, sn), kappa * (k + 1), math.atan2(-sn, c)))
+        return PositionFriction(side="table", terms=tuple(terms))
+
+    return ModelFamily(
+        f"stribeck_lead{harmonics}",
+        f"static Stribeck map (δ = 2) modulated with the lead {lead_m * 1e3:g} mm "
+        f"({harmonics} harmonic(s))",
+        params,
+        lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2)),
+        rule,
+        position,
     )
 
 
@@ -505,6 +594,7 @@ MODELS: Mapping[str, ModelFamily] = {
                 stribeck_velocity_m_per_s=_f(th, 5),
             ),
         ),
+        _stribeck_memory(),
         gms_family(3),
         gms_family(6),
     )
@@ -613,6 +703,8 @@ class FrictionFit:
     n_at_best: int
     starts: tuple[StartResult, ...] = field(repr=False)
     elapsed_s: float
+    #: The fitted position-dependent modulation (lead families), else None.
+    position_friction: PositionFriction | None = None
 
     @property
     def identifiable(self) -> bool:
@@ -621,7 +713,7 @@ class FrictionFit:
 
     def predict(self, data: FrictionData) -> FloatArray:
         """Force (N) of the fitted component along another record, from relaxed states."""
-        return _response(self.component, data)
+        return _response(self.component, data, position=self.position_friction)
 
     def to_markdown(self) -> str:
         """The parameters as a Markdown table (value, standard error, bounds, status)."""
@@ -651,6 +743,7 @@ def _response(
     data: FrictionData,
     n: int | None = None,
     integrator: IntegratorOptions | None = None,
+    position: PositionFriction | None = None,
 ) -> FloatArray:
     """Force of ``component`` along the first ``n`` samples (all by default)."""
     k = data.n_samples if n is None else n
@@ -665,6 +758,7 @@ def _response(
         data.time_s[:k],
         data.position_m[:k],
         data.velocity_m_per_s[:k],
+        position_friction=position,
         integrator=integrator,
     )
 
@@ -706,7 +800,9 @@ class _Problem:
         return np.asarray(np.clip((q - self.lo_int) / self.width, 0.0, 1.0), dtype=np.float64)
 
     def force(self, theta: FloatArray, n: int | None = None) -> FloatArray:
-        return _response(self.fam.build(theta), self.data, n, self.integrator)
+        return _response(
+            self.fam.build(theta), self.data, n, self.integrator, self.fam.position(theta)
+        )
 
     def simulate(self, u: FloatArray) -> FloatArray | None:
         try:
@@ -943,6 +1039,7 @@ def fit_friction(
                 data.time_s[:2],
                 data.position_m[:2],
                 data.velocity_m_per_s[:2],
+                position_friction=fam.position(prob.theta(corner)),
             )
         except ConfigError as e:
             raise ConfigError(f"bounds of {fam.name!r} give an invalid model: {e}") from e
@@ -981,7 +1078,8 @@ def fit_friction(
     cov, se, status = _covariance(prob, u_best, r)
     theta = prob.theta(u_best)
     component = fam.build(theta)
-    f_all = _response(component, data, None, integrator)
+    position = fam.position(theta)
+    f_all = _response(component, data, None, integrator, position)
     err = f_all - data.force_n
     rss = float(np.sum(err[:n_fit] ** 2))
     n_hold = data.n_samples - n_fit
@@ -1012,6 +1110,7 @@ def fit_friction(
         n_at_best=sum(1 for s, _ in results if s.cost <= best.cost + tol),
         starts=tuple(s for s, _ in results),
         elapsed_s=time.perf_counter() - t_start,
+        position_friction=position,
     )
 
 
