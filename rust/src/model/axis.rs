@@ -231,6 +231,12 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
         }
     }
 
+    /// Position, Dahl force and current each couple only to the velocity (and the stuck
+    /// Jacobian is diagonal).
+    fn arrowhead_hub(&self) -> Option<usize> {
+        Some(V)
+    }
+
     fn event(&self, y: &State) -> Option<f64> {
         match self.mode {
             Mode::Slip(d) => Some(y[V] * d),
