@@ -54,8 +54,8 @@ impl<const N: usize> Arrow<N> {
                 continue;
             }
             let d = c - jac[(j, j)];
-            // `!(d >= half)` also declines a NaN.
-            if !(d >= half) {
+            // Also declines a NaN.
+            if d < half || d.is_nan() {
                 return None;
             }
             let inv = 1.0 / d;
@@ -141,7 +141,7 @@ mod tests {
                     assert!(r.amax() <= 1e-13 * (wn * x.amax() + b.amax()), "{r}");
                 }
                 None => {
-                    let declined = (0..4).any(|j| j != hub && !(c - jac[(j, j)] >= 0.5 * c));
+                    let declined = (0..4).any(|j| j != hub && c - jac[(j, j)] < 0.5 * c);
                     assert!(declined || dense.is_none(), "{w}");
                 }
             }
