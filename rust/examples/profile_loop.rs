@@ -7,7 +7,9 @@
 //! same plant and controller objects, checks that it reproduces `run_extended` bit for bit,
 //! and prints the integrator's work per phase of the motion. `... -- bare step|iso FILE` runs
 //! only `run_extended` once (for `valgrind --tool=callgrind`; `REPS=n` repeats it, `REPS=0`
-//! measures the start-up and file-reading cost alone). `... -- accuracy step|iso FILE` runs
+//! measures the start-up and file-reading cost alone); `... -- bare-at step|iso FILE` runs
+//! `run_extended_at` instead (what a campaign trial runs: no trace, positions kept only at the
+//! sample before each reference jump and at the last sample). `... -- accuracy step|iso FILE` runs
 //! the default and a tight (rtol 1e-10, atol 1e-14 m) integrator and prints the largest
 //! position difference up to the first sample where the encoder counts differ (`SHOW_DX=1`
 //! lists it per sample, `LOOSE_RTOL=x` changes the default run's rtol, `SAVE_TIGHT=1` /
@@ -155,6 +157,37 @@ fn main() {
             r.len(),
             a.stats
         );
+        return;
+    }
+    if args.first().map(String::as_str) == Some("bare-at") {
+        let (iso, r) = reference(&args[1..]);
+        let cfg = config(iso, step_size(&args[1..]));
+        let mut idx: Vec<usize> = (1..r.len())
+            .filter(|&k| r[k] != r[k - 1])
+            .map(|k| k - 1)
+            .collect();
+        idx.push(r.len() - 1);
+        idx.dedup();
+        let reps: usize = std::env::var("REPS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(1);
+        for _ in 0..reps {
+            let m = nanostage::sim::run_extended_at(&cfg, &r, KnownInputs::default(), None, &idx)
+                .expect("run");
+            std::hint::black_box(&m);
+            if reps == 1 {
+                let h = m.position_m.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, v| {
+                    (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3)
+                });
+                let cnt: i64 = m.encoder_counts.iter().sum();
+                println!(
+                    "{:?} {} measurements, hash {h:016x} count sum {cnt}",
+                    m.stats,
+                    idx.len()
+                );
+            }
+        }
         return;
     }
     if args.first().map(String::as_str) == Some("bare") {

@@ -330,3 +330,59 @@ fn per_trial_level_on_the_rigid_plant_matches_the_component_plant() {
         "levels {levels_seen:?}"
     );
 }
+
+#[test]
+fn measuring_at_chosen_samples_is_the_full_run_picked() {
+    // Rigid plant (per-trial level only), component plant (within-trial fluctuation), and a
+    // delayed, noisy encoder with an interferometer (whose draws are not made when only the
+    // measurements are kept): positions, readings and work counters as in the full trace.
+    let mut rigid = stochastic_config();
+    rigid.stochastic = rigid.stochastic.map(|s| StochasticFriction {
+        within_spread: 0.0,
+        ..s
+    });
+    let mut sensed = stochastic_config();
+    sensed.sensors.noise_std_m = 30e-9;
+    sensed.sensors.delay_samples = 2;
+    sensed.sensors.interferometer = Some(nanostage::sim::Interferometer {
+        resolution_m: 1e-9,
+        noise_std_m: 1e-9,
+    });
+    let (r, idx) = cycle();
+    let mut more = idx.clone();
+    more.insert(0, 0);
+    more.push(r.len() - 1);
+    more.sort_unstable();
+    more.dedup();
+    for (name, mut cfg) in [
+        ("rigid", rigid),
+        ("component", stochastic_config()),
+        ("sensed", sensed),
+    ] {
+        cfg.seed = trial_seed(3, 1);
+        let tr = run_extended(&cfg, &r, KnownInputs::default(), None).unwrap();
+        let m =
+            nanostage::sim::run_extended_at(&cfg, &r, KnownInputs::default(), None, &more).unwrap();
+        assert_eq!(m.stats, tr.stats, "{name}");
+        assert_eq!(m.position_m.len(), more.len(), "{name}");
+        for (j, &i) in more.iter().enumerate() {
+            assert_eq!(
+                m.position_m[j].to_bits(),
+                tr.position_m[i].to_bits(),
+                "{name}"
+            );
+            assert_eq!(m.encoder_counts[j], tr.encoder_counts[i], "{name}");
+        }
+    }
+    // Indices past the reference are not reached.
+    let cfg = stochastic_config();
+    let m = nanostage::sim::run_extended_at(
+        &cfg,
+        &r[..50],
+        KnownInputs::default(),
+        None,
+        &[10, 49, 50],
+    )
+    .unwrap();
+    assert_eq!(m.position_m.len(), 2);
+}

@@ -10,9 +10,11 @@
 //! State events (a sign change of [`OdeSystem::event`]) end a segment early; they are
 //! located by the Illinois method on the step size.
 
+mod arrow;
 mod lu;
 mod rodas;
 
+pub use arrow::Arrow;
 pub use lu::Lu;
 
 pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats};
@@ -36,6 +38,13 @@ pub trait OdeSystem<const N: usize> {
     ) {
         self.rhs(y, dy);
         self.jacobian(y, jac);
+    }
+    /// `Some(k)` when every nonzero off-diagonal entry of `∂f/∂y` lies in row `k` or column
+    /// `k` (an arrowhead Jacobian, hub `k`) wherever the integrator evaluates it: the
+    /// iteration matrix is then solved by [`Arrow`] (elimination into the hub), not by a dense
+    /// LU. `None` (the default): dense.
+    fn arrowhead_hub(&self) -> Option<usize> {
+        None
     }
     /// Event function. `None` when the system has no event. An event happens where the value
     /// goes from `≥ 0` at the start of a step to `< 0` at its end.

@@ -35,6 +35,9 @@ pub struct Axis {
     /// Equivalent mass at the table m + η·J_m/r² + η_s·J_s·(2π/P)², kg (forward efficiency
     /// also scales the reflected inertias; docs/model.md).
     pub equivalent_mass_kg: f64,
+    /// Stribeck exponent above which the motor friction's exponential does not change the
+    /// torque (`StribeckFriction::negligible_exponent`).
+    pub stribeck_negligible_exponent: f64,
 }
 
 impl Axis {
@@ -51,6 +54,7 @@ impl Axis {
             equivalent_mass_kg: params.table.mass_kg
                 + eta * params.motor.rotor_inertia_kg_m2 / (r * r)
                 + params.screw.efficiency * params.screw.inertia_kg_m2 * k * k,
+            stribeck_negligible_exponent: params.motor_friction.negligible_exponent(),
         })
     }
 
@@ -185,7 +189,9 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                 };
             }
             Mode::Slip(d) => {
-                let (tf, _) = p.motor_friction.torque(y[V] / r, d);
+                let tf = p
+                    .motor_friction
+                    .torque_value(y[V] / r, d, a.stribeck_negligible_exponent);
                 let (dz, _, _) = p.dahl.rate(y[V], y[Z], d);
                 self.slip_rhs(y, tf, dz, dy);
             }
@@ -229,6 +235,12 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                 self.slip_jacobian(dtf_dw, dz_dv, dz_dz, jac);
             }
         }
+    }
+
+    /// Position, Dahl force and current each couple only to the velocity (and the stuck
+    /// Jacobian is diagonal).
+    fn arrowhead_hub(&self) -> Option<usize> {
+        Some(V)
     }
 
     fn event(&self, y: &State) -> Option<f64> {

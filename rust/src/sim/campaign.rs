@@ -10,7 +10,7 @@
 //! failure); the other trials complete. A stop flag (Ctrl-C) is polled before each trial and,
 //! inside a trial, every 256 control samples by [`run_extended`]; trials cut short or never
 //! started are reported as such. Invalid input is a [`ConfigError`] before any trial runs.
-use super::extended::{run_extended, stream_seed, ExtendedConfig, KnownInputs};
+use super::extended::{run_extended_at, stream_seed, ExtendedConfig, KnownInputs};
 use crate::error::{ConfigError, SimError};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -215,28 +215,27 @@ fn run_trial(
     }
     let mut cfg = *campaign.config;
     cfg.seed = trial_seed(base_seed, trial);
-    match run_extended(&cfg, campaign.reference_m, KnownInputs::default(), stop) {
-        Ok(tr) => {
+    match run_extended_at(
+        &cfg,
+        campaign.reference_m,
+        KnownInputs::default(),
+        stop,
+        campaign.measure_index,
+    ) {
+        Ok(meas) => {
             let count_m = cfg.sensors.encoder.count_m;
-            let pick = |v: &[f64]| -> Vec<f64> {
-                campaign
-                    .measure_index
-                    .iter()
-                    .map(|&i| v.get(i).copied().unwrap_or(f64::NAN))
-                    .collect()
+            let pad = |mut v: Vec<f64>| {
+                v.resize(m, f64::NAN);
+                v
             };
-            let encoder_m = campaign
-                .measure_index
+            let encoder_m = meas
+                .encoder_counts
                 .iter()
-                .map(|&i| {
-                    tr.encoder_counts
-                        .get(i)
-                        .map_or(f64::NAN, |&c| c as f64 * count_m)
-                })
+                .map(|&c| c as f64 * count_m)
                 .collect();
             TrialResult {
-                position_m: pick(&tr.position_m),
-                encoder_m,
+                position_m: pad(meas.position_m),
+                encoder_m: pad(encoder_m),
                 status: TrialStatus::Ok,
                 failure: None,
             }

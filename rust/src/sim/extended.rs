@@ -264,6 +264,19 @@ impl AnyPlant {
         }
     }
 
+    /// (table position, motor-side position): what the sensors need (equal to the first two
+    /// entries of [`Self::observe`]).
+    #[inline]
+    fn positions(&self) -> (f64, f64) {
+        match self {
+            Self::Rigid(p) => (p.y[0], p.y[0]),
+            Self::Drive(p) => {
+                let y = p.state();
+                (y[2 * p.drive().table()], y[0])
+            }
+        }
+    }
+
     /// (table position, motor-side position, table velocity, current, motor friction,
     /// table friction, stuck)
     fn observe(&self, inp: &Inputs) -> (f64, f64, f64, f64, f64, f64, bool) {
@@ -338,6 +351,70 @@ pub fn run_extended(
     known: KnownInputs<'_>,
     stop: Option<&AtomicBool>,
 ) -> Result<Trace, SimError> {
+    let mut tr = Trace::default();
+    let stats = run_loop(cfg, reference_m, known, stop, &mut Sink::Trace(&mut tr))?;
+    tr.stats = stats;
+    Ok(tr)
+}
+
+/// What a run measured at chosen samples only (see [`run_extended_at`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Measured {
+    /// True table position at each chosen sample, m.
+    pub position_m: Vec<f64>,
+    /// Encoder reading (before any reading delay) at each chosen sample, counts.
+    pub encoder_counts: Vec<i64>,
+    /// Integrator work counters.
+    pub stats: Stats,
+}
+
+/// [`run_extended`] keeping only the table position and the encoder reading at the samples
+/// `measure_index` (strictly increasing; indices past the reference are ignored): the same
+/// run, bit for bit (`position_m[j]` equals the trace's `position_m[measure_index[j]]`), without
+/// the per-sample trace (channels, friction forces, controller terms) that a Monte Carlo
+/// campaign does not keep.
+pub fn run_extended_at(
+    cfg: &ExtendedConfig,
+    reference_m: &[f64],
+    known: KnownInputs<'_>,
+    stop: Option<&AtomicBool>,
+    measure_index: &[usize],
+) -> Result<Measured, SimError> {
+    let mut out = Measured {
+        position_m: Vec::with_capacity(measure_index.len()),
+        encoder_counts: Vec::with_capacity(measure_index.len()),
+        stats: Stats::default(),
+    };
+    let mut sink = Sink::At {
+        index: measure_index,
+        next: 0,
+        out: &mut out,
+    };
+    let stats = run_loop(cfg, reference_m, known, stop, &mut sink)?;
+    out.stats = stats;
+    Ok(out)
+}
+
+/// Where the loop's samples go.
+enum Sink<'a> {
+    /// Every channel of every sample.
+    Trace(&'a mut Trace),
+    /// Position and encoder reading at the samples `index` (`next`: the first not yet reached).
+    At {
+        index: &'a [usize],
+        next: usize,
+        out: &'a mut Measured,
+    },
+}
+
+/// The loop of [`run_extended`]; returns the integrator's work counters.
+fn run_loop(
+    cfg: &ExtendedConfig,
+    reference_m: &[f64],
+    known: KnownInputs<'_>,
+    stop: Option<&AtomicBool>,
+    sink: &mut Sink<'_>,
+) -> Result<Stats, SimError> {
     cfg.validate()?;
     let n = reference_m.len();
     check_samples(n)?;
@@ -399,7 +476,9 @@ pub fn run_extended(
             w = a * w + b * g;
         }
     }
-    let mut tr = Trace::with_capacity(n);
+    if let Sink::Trace(tr) = sink {
+        **tr = Trace::with_capacity(n);
+    }
     let mut pid = match &cfg.controller {
         ControllerKind::Fpga { pid, .. } => {
             Some(Pid::new(*pid).map_err(|e| e.within("controller"))?)
@@ -428,7 +507,7 @@ pub fn run_extended(
             friction_scale: if fluctuating { scale[k] } else { level },
         };
         let t_n = times[k];
-        let (x_t, x_m, v_t, cur, f_motor, f_table, stuck) = plant.observe(&inp);
+        let (x_t, x_m) = plant.positions();
         // Sensor: cyclic error and noise before the floor quantisation, then the delay.
         let x_sensed = match enc.side {
             Side::Table => x_t,
@@ -454,7 +533,8 @@ pub fn run_extended(
         };
         let r_counts = enc.encoder.reference_counts(r_m);
         // The controller.
-        let (u_ctrl, command, fl, terms) = match (&cfg.controller, pid.as_mut(), cascade.as_mut()) {
+        // The controller (its recorded terms are converted only when a trace is kept).
+        let (u_ctrl, fl, pid_out) = match (&cfg.controller, pid.as_mut(), cascade.as_mut()) {
             (ControllerKind::Fpga { pid: c, output }, Some(p), _) => {
                 let out = p.step(r_counts, counts_seen);
                 let (u, amp_sat) = output.motor_voltage(out.code, c.dac_lsb_v);
@@ -464,24 +544,13 @@ pub fn run_extended(
                     } else {
                         0
                     };
-                (
-                    u,
-                    c.output_format.to_f64(out.u),
-                    fl,
-                    (
-                        out.code,
-                        c.error_format.to_f64(out.e),
-                        c.term_format.to_f64(out.p),
-                        c.integrator_format.to_f64(out.i),
-                        c.term_format.to_f64(out.d),
-                    ),
-                )
+                (u, fl, Some(out))
             }
             (ControllerKind::Cascade(_), _, Some(c)) => {
                 let y_m = counts_seen as f64 * enc.encoder.count_m;
                 let (u, sat) = c.step(r_m, y_m);
                 let fl = if sat { flags::AMPLIFIER_SATURATED } else { 0 };
-                (u, u, fl, (0, 0.0, 0.0, 0.0, 0.0))
+                (u, fl, None)
             }
             _ => unreachable!("controller state matches its kind"),
         };
@@ -492,33 +561,58 @@ pub fn run_extended(
         } else {
             0.0
         };
-        tr.time_s.push(t_n);
-        tr.reference_m.push(r_m);
-        tr.reference_counts.push(r_counts);
-        tr.position_m.push(x_t);
-        tr.motor_position_m.push(x_m);
-        tr.velocity_m_per_s.push(v_t);
-        tr.encoder_counts.push(counts_now);
-        tr.current_a.push(cur);
-        tr.motor_voltage_v.push(u_new);
-        tr.command.push(command);
-        tr.dac_code.push(terms.0);
-        tr.error.push(terms.1);
-        tr.p_term.push(terms.2);
-        tr.i_term.push(terms.3);
-        tr.d_term.push(terms.4);
-        tr.flags.push(fl);
-        tr.motor_friction_force_n.push(f_motor);
-        tr.table_friction_force_n.push(f_table);
-        tr.stuck.push(stuck);
-        if let Some(i) = &enc.interferometer {
-            let g: f64 = if i.noise_std_m > 0.0 {
-                StandardNormal.sample(&mut rng_interf)
-            } else {
-                0.0
-            };
-            tr.interferometer_m
-                .push((x_t / i.resolution_m).round() * i.resolution_m + i.noise_std_m * g);
+        match sink {
+            Sink::Trace(tr) => {
+                let (_, _, v_t, cur, f_motor, f_table, stuck) = plant.observe(&inp);
+                let (command, terms) = match (&cfg.controller, pid_out) {
+                    (ControllerKind::Fpga { pid: c, .. }, Some(out)) => (
+                        c.output_format.to_f64(out.u),
+                        (
+                            out.code,
+                            c.error_format.to_f64(out.e),
+                            c.term_format.to_f64(out.p),
+                            c.integrator_format.to_f64(out.i),
+                            c.term_format.to_f64(out.d),
+                        ),
+                    ),
+                    _ => (u_ctrl, (0, 0.0, 0.0, 0.0, 0.0)),
+                };
+                tr.time_s.push(t_n);
+                tr.reference_m.push(r_m);
+                tr.reference_counts.push(r_counts);
+                tr.position_m.push(x_t);
+                tr.motor_position_m.push(x_m);
+                tr.velocity_m_per_s.push(v_t);
+                tr.encoder_counts.push(counts_now);
+                tr.current_a.push(cur);
+                tr.motor_voltage_v.push(u_new);
+                tr.command.push(command);
+                tr.dac_code.push(terms.0);
+                tr.error.push(terms.1);
+                tr.p_term.push(terms.2);
+                tr.i_term.push(terms.3);
+                tr.d_term.push(terms.4);
+                tr.flags.push(fl);
+                tr.motor_friction_force_n.push(f_motor);
+                tr.table_friction_force_n.push(f_table);
+                tr.stuck.push(stuck);
+                if let Some(i) = &enc.interferometer {
+                    let g: f64 = if i.noise_std_m > 0.0 {
+                        StandardNormal.sample(&mut rng_interf)
+                    } else {
+                        0.0
+                    };
+                    tr.interferometer_m
+                        .push((x_t / i.resolution_m).round() * i.resolution_m + i.noise_std_m * g);
+                }
+            }
+            Sink::At { index, next, out } => {
+                if index.get(*next) == Some(&k) {
+                    out.position_m.push(x_t);
+                    out.encoder_counts.push(counts_now);
+                    *next += 1;
+                }
+            }
         }
         let t_update = t_n + latency_s;
         let inp_new = Inputs { u_v: u_new, ..inp };
@@ -532,8 +626,7 @@ pub fn run_extended(
         }
         u_held = u_new;
     }
-    tr.stats = plant.stats();
-    Ok(tr)
+    Ok(plant.stats())
 }
 
 /// What an open-loop run of the component plant recorded, at t_k = k·T for k = 0..=n.

@@ -9,7 +9,8 @@ pub use campaign::{
     MAX_TRIALS,
 };
 pub use extended::{
-    run_drive_open_loop, run_extended, stream_seed, ControllerKind, DriveOpenLoopTrace,
-    ExtendedConfig, Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction,
+    run_drive_open_loop, run_extended, run_extended_at, stream_seed, ControllerKind,
+    DriveOpenLoopTrace, ExtendedConfig, Interferometer, KnownInputs, Measured, Sensors,
+    SpreadDistribution, StochasticFriction,
 };
 pub use trial::{run_closed_loop, run_open_loop, ClosedLoopConfig, OpenLoopTrace, Trace};
