@@ -20,7 +20,8 @@ Model families (:data:`MODELS`, by stable name)
     modulated with a given screw lead (``stribeck_lead<h>``, cos/sin amplitude per harmonic).
     Rising static friction with dwell time is not identifiable here: along a prescribed
     motion a static map's force at rest is set by the rest of the system, so the breakaway
-    force never enters the record's model force (it needs a force-driven breakaway test). Each family lists its parameters (SI names and units),
+    force never enters the record's model force (it needs a force-driven breakaway test). Each
+    family lists its parameters (SI names and units),
     default bounds scaled from the data (:class:`DataScales`) and a ``build(theta)`` that
     returns the component. Scale parameters (stiffnesses, Stribeck velocity, LuGre damping)
     are fitted in log space; forces and coefficients that may be 0 are fitted linearly. The
