@@ -235,6 +235,15 @@ def test_too_few_samples_and_constant_reference(tmp_path: Path) -> None:
     rows = [f"{k * 1e-3},0.0,0.0" for k in range(20)]
     err = _trace_error(write_csv(tmp_path / "flat.csv", "time_s,reference_m,position_m", rows))
     assert err.column == "reference_m" and "never moves" in str(err)
+    # A constant disturbance does not drive anything either.
+    rows = [f"{k * 1e-3},0.0,0.0,0.5" for k in range(20)]
+    header = "time_s,reference_m,position_m,disturbance_v"
+    err = _trace_error(write_csv(tmp_path / "flat_v.csv", header, rows))
+    assert err.column == "reference_m" and "known disturbance column" in str(err)
+    # An open-loop pulse test: the reference never moves, a known voltage drives the axis.
+    rows = [f"{k * 1e-3},0.0,{k * 1e-7},{0.01 * k}" for k in range(20)]
+    exp = read_trace(write_csv(tmp_path / "pulse.csv", header, rows))
+    assert exp.disturbance_v is not None and exp.disturbance_v[-1] == pytest.approx(0.19)
 
 
 def test_millimetres_are_detected(tmp_path: Path) -> None:

@@ -17,7 +17,15 @@ import numpy as np
 import pytest
 
 import nanostage as ns
-from nanostage.diagnosis.benchmark import DESIGN, MID_COUNT_M, MOVE_S, design_reference
+from nanostage import presets
+from nanostage.config import Plant, System
+from nanostage.diagnosis.benchmark import (
+    BREAKAWAY_GAINS,
+    DESIGN,
+    MID_COUNT_M,
+    MOVE_S,
+    design_reference,
+)
 from nanostage.diagnosis.candidates import (
     CANDIDATES,
     NOT_CANDIDATES,
@@ -37,8 +45,15 @@ from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
 from nanostage.diagnosis.run import diagnose, indistinguishable, ties_of_selected
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effect_names import EFFECT_NAMES
-from nanostage.effects import Effects, FrictionModifiers, StochasticFriction
+from nanostage.effects import (
+    DwellStaticFriction,
+    Effects,
+    EncoderErrors,
+    FrictionModifiers,
+    StochasticFriction,
+)
 from nanostage.experiment import Experiment
+from nanostage.simulate import simulate
 
 
 def test_every_effect_name_is_a_candidate_or_explained() -> None:
@@ -146,10 +161,56 @@ def test_benchmark_design_reference() -> None:
     assert np.all(ref[550:] == ref[0])
     with pytest.raises(ValueError, match="2 steps need 2 dwells"):
         design_reference((1e-6, 1e-6), 0.0, (0.1,))
-    for steps, x0, dwells, _role in DESIGN:
+    for steps, x0, dwells, _role, gains in DESIGN:
         assert len(steps) == len(dwells)
-        if max(abs(s) for s in steps) < 1e-6:  # micro-steps: mid-count starts
+        if max(abs(s) for s in steps) < 1e-6:  # micro-steps: mid-count starts, breakaway tests
             assert 0.1 < (x0 / 1e-7) % 1.0 < 0.9
+            assert gains == BREAKAWAY_GAINS
+    assert BREAKAWAY_GAINS[0] == 0.0 and BREAKAWAY_GAINS[2] == 0.0 < BREAKAWAY_GAINS[1]
+
+
+def test_breakaway_tests_carry_the_dwell_signature_above_the_scatter() -> None:
+    """The benchmark's integral-only micro-steps: a static friction rising with the dwell
+    changes the response far more than two stochastic friction draws differ, and far more
+    than it does under the Table 1 gains."""
+    base = presets.seed(1e-3)
+    p = base.plant
+    assert isinstance(p, Plant)
+    eta = p.gearhead.efficiency * p.screw.efficiency
+    fs = eta * p.motor_friction.static_torque_nm / p.transmission_m_per_rad
+    noisy = dc.replace(
+        base,
+        effects=Effects(
+            stochastic=StochasticFriction(level_spread=0.005),
+            encoder_errors=EncoderErrors(noise_std_m=5e-9),
+        ),
+    )
+    dwell = dc.replace(
+        noisy,
+        effects=dc.replace(
+            noisy.effects,
+            motor_friction=FrictionModifiers(
+                dwell=DwellStaticFriction(rise_n=3 * fs, time_constant_s=0.3)
+            ),
+        ),
+    )
+    x0 = 22.3e-3 + MID_COUNT_M
+    ref = design_reference((3e-7,) * 4, x0, (1.5, 0.05, 0.8, 0.1))
+
+    def runs(s: System, gains: tuple[float, float, float], seed: int) -> np.ndarray:
+        g = presets.with_gains(s, kp=gains[0], ki=gains[1], kd=gains[2])
+        return simulate(g, ref, seed=seed, initial_position_m=x0).encoder_position_m
+
+    def rms(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.sqrt(np.mean((a - b) ** 2)))
+
+    signal = {}
+    for gains in (BREAKAWAY_GAINS, presets.table1_gains(100e-6)):
+        scatter = rms(runs(noisy, gains, 1), runs(noisy, gains, 2))
+        signal[gains] = rms(runs(dwell, gains, 1), runs(noisy, gains, 1))
+        if gains == BREAKAWAY_GAINS:
+            assert signal[gains] > 5 * scatter
+    assert signal[BREAKAWAY_GAINS] > 2 * signal[presets.table1_gains(100e-6)]
 
 
 def test_hold_intervals_and_phase_insensitive_gap() -> None:
@@ -166,6 +227,41 @@ def test_hold_intervals_and_phase_insensitive_gap() -> None:
     # A different amplitude is still seen.
     r2 = gap_residual(meas, np.where(t >= 80, 1e-4 + 1e-6 * np.sin(2 * np.pi * t / 40), sim), ref)
     assert np.sqrt(np.mean(r2[200:] ** 2)) > 5e-7
+
+
+def test_a_move_out_of_a_hunting_hold_is_compared_at_its_best_phase() -> None:
+    """After a hold that ends unsettled (hunting by many counts), the next move starts from
+    the phase of the oscillation: its transient is compared after the best small time
+    shift. After a settled hold the same delay is a gap."""
+    q = 1e-7
+    n = 600
+    t = np.arange(n)
+    ref = np.where(t < 20, 0.0, np.where(t < 300, 2e-4, 0.0))
+
+    def response(delay: int, hunting_m: float) -> np.ndarray:
+        # Rise to 200 µm, hunt until the move back starts (``delay`` samples after the
+        # reference), fall in 20 samples, rest.
+        rise = np.clip((t - 20) / 20, 0.0, 1.0) * 2e-4
+        fall = 2e-4 * (1.0 - np.clip((t - 300 - delay) / 20, 0.0, 1.0))
+        x = np.where(t < 300 + delay, rise, fall)
+        hunt = (t >= 60) & (t < 300 + delay)
+        x[hunt] += hunting_m * np.sin(2 * np.pi * t[hunt] / 20)
+        return np.round(x / q) * q
+
+    for hunting_m in (1.6e-5, 0.0):
+        meas = response(7, hunting_m)
+        sim = response(0, hunting_m)
+        r = gap_residual(meas, sim, ref)
+        move = float(np.sqrt(np.mean(r[300:330] ** 2)))
+        plain = float(np.sqrt(np.mean((meas - sim)[300:330] ** 2)))
+        if hunting_m > 0:
+            assert move < 0.3 * plain  # aligned: left, the hunting over the 7 samples
+        else:
+            assert move == plain > 2e-5  # settled: a delay of seven samples is a gap
+    # A reference that never moves (an open-loop pulse test): sample by sample throughout.
+    flat = np.zeros(n)
+    meas, sim = response(7, 1.6e-5), response(0, 1.6e-5)
+    assert np.array_equal(gap_residual(meas, sim, flat), meas - sim)
 
 
 def test_noise_floor_sees_quantisation_noise_and_repeats() -> None:

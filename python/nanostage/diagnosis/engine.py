@@ -299,6 +299,23 @@ def hold_intervals(reference_m: npt.ArrayLike, min_samples: int = 20) -> list[tu
     return out
 
 
+#: A hold is *unsettled* at its end when the measured position still spans more than this
+#: many quanta (the smallest changes between samples: an encoder count) over its last
+#: :data:`SETTLE_WINDOW` samples, and more than :data:`UNSETTLED_STEP_FRACTION` of the step
+#: into it.
+UNSETTLED_QUANTA = 4.0
+UNSETTLED_STEP_FRACTION = 0.02
+SETTLE_WINDOW = 50
+
+
+def _quantum(m: FloatArray) -> float:
+    d = np.abs(np.diff(m))
+    d = d[d > 0]
+    # The 5th percentile of the nonzero changes: one count for encoder data however fast
+    # the axis moves, the noise level for a continuous sensor.
+    return float(np.percentile(d, 5.0)) if d.size else 0.0
+
+
 def gap_residual(
     measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike, reference_m: npt.ArrayLike
 ) -> FloatArray:
@@ -307,22 +324,56 @@ def gap_residual(
     the second half of that stretch, if it never does): there the *sorted* values are
     compared — the distribution of positions (mean, overshoot amplitude, limit-cycle
     amplitude) but not the phase of an oscillation, which no model reproduces sample by
-    sample once it is chaotic (backlash hunting, stick-slip)."""
+    sample once it is chaotic (backlash hunting, stick-slip).
+
+    A move that starts while the measured position is still hunting (the previous hold is
+    unsettled at its end, see :data:`UNSETTLED_QUANTA`) starts from the phase of that
+    oscillation, which no model reproduces either: its transient is compared after the time
+    shift of at most :data:`SETTLE_WINDOW` samples that fits best (the minimum over shifts
+    is still a continuous function of the model). Which samples are compared how depends on
+    the measured data only.
+
+    An experiment whose reference never moves is driven by a known input (an open-loop
+    pulse or a disturbance test): its response is compared sample by sample throughout."""
     m = np.asarray(measured_m, dtype=np.float64)
     s = np.asarray(simulated_m, dtype=np.float64)
     ref = np.asarray(reference_m, dtype=np.float64)
     r = m - s
+    if ref.size == 0 or np.all(ref == ref[0]):
+        return r
+    q = _quantum(m)
+    unsettled = False
     for a, b in hold_intervals(ref):
+        step = abs(ref[a] - ref[a - 1]) if a > 0 else 0.0
         side = np.sign(m[a:b] - ref[a])
         start_side = side[0]
         crossed = np.flatnonzero(side != start_side) if start_side != 0 else np.array([0])
         h = a + int(crossed[0]) if crossed.size else a + (b - a) // 2
+        if unsettled and h > a:
+            r[a:h] = m[a:h] - _best_shift(m, s, a, h, SETTLE_WINDOW)
         if b - h > 1:
             order = np.argsort(m[h:b], kind="stable")
             aligned = np.empty(b - h)
             aligned[order] = np.sort(s[h:b])
             r[h:b] = m[h:b] - aligned
+        tail = m[max(a, b - SETTLE_WINDOW) : b]
+        spread = float(np.ptp(tail)) if tail.size else 0.0
+        unsettled = spread > UNSETTLED_QUANTA * q and spread > UNSETTLED_STEP_FRACTION * step
     return r
+
+
+def _best_shift(m: FloatArray, s: FloatArray, a: int, h: int, window: int) -> FloatArray:
+    """``s`` over ``[a, h)`` delayed or advanced by the whole number of samples (at most
+    ``window``) that matches ``m`` there best (indices clamped to the record)."""
+    idx = np.arange(a, h)
+    best: FloatArray = s[a:h]
+    best_cost = float(np.sum((m[a:h] - best) ** 2))
+    for shift in range(-window, window + 1):
+        cand = s[np.clip(idx + shift, 0, len(s) - 1)]
+        cost = float(np.sum((m[a:h] - cand) ** 2))
+        if cost < best_cost:
+            best, best_cost = cand, cost
+    return best
 
 
 def align_holds(

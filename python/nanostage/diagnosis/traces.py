@@ -34,7 +34,9 @@ Checks (each raises :class:`TraceError`)
 * unequal column lengths (``.npz``/``.mat``), non-1-D arrays;
 * time not strictly increasing (the line or sample where it first fails);
 * fewer than :data:`MIN_SAMPLES` samples;
-* a reference that never moves (peak-to-peak 0);
+* a reference that never moves (peak-to-peak 0), unless a known disturbance column
+  (``disturbance_v``, ``disturbance_n``) drives the experiment (an open-loop or
+  disturbance test);
 * values that look like millimetres: a position-like column (reference, position,
   interferometer) with a peak-to-peak above :data:`MAX_TRAVEL_M` (the axes have at most
   0.5 m of travel), or a position/reference (or interferometer/position) scale ratio of
@@ -389,15 +391,25 @@ def _validate(table: _Table) -> None:
                 column=c,
             )
     ref_p2p = _peak_to_peak(data["reference_m"])
-    if ref_p2p == 0.0:
+    if ref_p2p == 0.0 and not _driven(data):
         raise table.error(
             f"the reference never moves (constant {data['reference_m'][0]!r} m); an "
-            "experiment needs at least one move",
+            "experiment needs at least one move, or a known disturbance column "
+            "(disturbance_v, disturbance_n) that drives it",
             column="reference_m",
         )
     _check_scale(table, "position_m", "reference_m")
     if "interferometer_m" in data:
         _check_scale(table, "interferometer_m", "position_m")
+
+
+#: Known inputs that can drive an experiment whose reference never moves.
+DRIVING_COLUMNS = ("disturbance_v", "disturbance_n")
+
+
+def _driven(data: Mapping[str, Any]) -> bool:
+    """Whether a known disturbance column moves (an open-loop or disturbance test)."""
+    return any(c in data and _peak_to_peak(data[c]) > 0.0 for c in DRIVING_COLUMNS)
 
 
 def _check_scale(table: _Table, col: str, against: str) -> None:
@@ -481,9 +493,11 @@ def cut_window(exp: Experiment, window_s: Sequence[float]) -> Experiment:
             file=file,
             column="time_s",
         )
-    if _peak_to_peak(out.reference_m) == 0.0:
+    inputs = {c: getattr(out, c) for c in DRIVING_COLUMNS if getattr(out, c) is not None}
+    if _peak_to_peak(out.reference_m) == 0.0 and not _driven(inputs):
         raise TraceError(
-            f"the reference never moves inside the window [{start:g}, {stop:g}) s",
+            f"the reference never moves inside the window [{start:g}, {stop:g}) s, and no "
+            "known disturbance drives the experiment there",
             file=file,
             column="reference_m",
         )
