@@ -11,7 +11,7 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -36,7 +36,9 @@ from nanostage.diagnosis.engine import (
     FRICTION_MODELS,
     CandidateResult,
     DiagnosisSettings,
+    Fit,
     FitProblem,
+    _refit_control,
     gap_residual,
     hold_intervals,
     noise_floor_m,
@@ -389,6 +391,52 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
         "asymmetric_friction": ["offset_force"]
     }
     assert ties_of_selected(rounds, []) == {}
+
+
+def test_refit_control_restarts_the_model_before_from_a_candidates_free_values() -> None:
+    """Refitting alone: when the model before, refitted from a significant candidate's free
+    values, fits the training data better, that fit is the new baseline; else nothing.
+    The warm starts are restored either way, and insignificant candidates are not used."""
+    free = [("plant.dahl.coulomb_force_n", Param(name="f", unit="N", lower=1, upper=9, initial=5))]
+    landscape = {5.0: 2e-8, 3.0: 1e-8, 7.0: 3e-8}  # training RMS of the model before at a start
+
+    def fit_of(v: float) -> Fit:
+        return cast(Fit, SimpleNamespace(values={free[0][0]: v}, train_rms_m=landscape[v]))
+
+    calls: list[float] = []
+
+    def fit_and_validate(*_: object) -> tuple[list[Fit], np.ndarray, list[object], list[None]]:
+        v = ctx.warm[0][free[0][0]]
+        calls.append(v)
+        return [fit_of(v)], np.array([landscape[v] ** 2]), [], [None]
+
+    ctx = SimpleNamespace(
+        st=DiagnosisSettings(refit_control_top=2),
+        free=free,
+        warm=[{free[0][0]: 5.0}],
+        fit_and_validate=fit_and_validate,
+    )
+
+    def result(name: str, v: float, significant: bool) -> CandidateResult:
+        return cast(
+            CandidateResult,
+            SimpleNamespace(effect=name, fold_fits=[fit_of(v)], significant=significant),
+        )
+
+    current = [fit_of(5.0)]
+    ms = np.array([4e-16])
+    worse = [result("a", 7.0, True), result("b", 5.0, True)]
+    assert _refit_control(cast(Any, ctx), ns.presets.seed(), worse, current, ms, 0, False) is None
+    assert ctx.warm == [{free[0][0]: 5.0}] and calls == [7.0, 5.0]
+    calls.clear()
+    mixed = [result("c", 3.0, False), result("d", 7.0, True), result("e", 3.0, True)]
+    out = _refit_control(cast(Any, ctx), ns.presets.seed(), mixed, current, ms, 1, False)
+    assert out is not None and calls == [7.0, 3.0]
+    fits, new_ms, _, record = out
+    assert fits[0].train_rms_m == 1e-8 and new_ms[0] == pytest.approx(1e-16)
+    assert record["restarted_from"] == "e" and record["round"] == 2
+    assert record["train_rms_after_m"] < record["train_rms_before_m"]
+    assert ctx.warm == [{free[0][0]: 5.0}]
 
 
 def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None:

@@ -77,6 +77,9 @@ class DiagnosisSettings:
     forward_rounds: int = 3
     forward_top: int = 8
     refine_top: int = 4
+    #: Significant candidates of a round whose free values restart the model before
+    #: (refitting alone; 0 turns the control off).
+    refit_control_top: int = 2
     #: Points of the coarse scan over a candidate's own parameters before its local fits.
     scan_points: int = 12
     seed: int = 0
@@ -488,6 +491,10 @@ class CandidateResult:
     significant: bool
     reasons: list[str]
     setting: int | None = None
+    #: The candidate's position in its round (seeds its bootstrap) and its parameter count
+    #: (the complexity penalty), kept so that it can be judged again against a new baseline.
+    index: int = 0
+    k_params: int = 0
 
     def to_dict(self, params: Sequence[tuple[str, Param]]) -> dict[str, Any]:
         units = {n: p.unit for n, p in params}
@@ -631,7 +638,9 @@ def diagnose_experiments(
     """Run the diagnosis over train/validate folds. Returns a dict with ``nominal`` (Fit of
     the first fold), ``nominal_validation_ms``, ``floor_rms_m``, ``rounds`` (lists of
     CandidateResult, best first), ``selected`` (names), ``final`` (Fit of the first fold),
-    ``final_validation_ms``, ``skipped`` (name → reason) and ``timing_s``."""
+    ``final_validation_ms``, ``skipped`` (name → reason), ``refit_control`` (the rounds in
+    which refitting the model before from a candidate's free values improved it) and
+    ``timing_s``."""
     st = settings or DiagnosisSettings()
     workers = st.workers or (os.cpu_count() or 1)
     t_start = time.perf_counter()
@@ -661,6 +670,7 @@ def diagnose_experiments(
         ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
         selected: list[str] = []
         rounds: list[list[CandidateResult]] = []
+        refits: list[dict[str, Any]] = []
         current = nominal
         current_fits = nominal_fits
         current_ms = base_ms
@@ -711,6 +721,33 @@ def diagnose_experiments(
                     progress,
                 )
             results.sort(key=lambda r: r.validation_rms_m)
+            # Refitting alone: a candidate's fit moves the free nominal parameters too, and
+            # may have found a better optimum of the model *without* the effect. Refit the
+            # model before from each significant candidate's free values; a better
+            # training fit becomes the baseline, and every candidate is judged again.
+            better = _refit_control(ctx, current, results, current_fits, current_ms, rnd, progress)
+            if better is not None:
+                current_fits, current_ms, current_cmd, record = better
+                refits.append(record)
+                ctx.warm[:] = [_free_values(f, free) for f in current_fits]
+                if rnd == 0:
+                    nominal_fits, base_ms, base_cmd = current_fits, current_ms, current_cmd
+                results = [
+                    _verdict(
+                        r.effect,
+                        r.fold_fits,
+                        r.validation_ms,
+                        r.validation_command_ms,
+                        r.setting,
+                        r.k_params,
+                        current_ms,
+                        current_cmd,
+                        ctx,
+                        r.index,
+                    )
+                    for r in results
+                ]
+                results.sort(key=lambda r: r.validation_rms_m)
             rounds.append(results)
             if rnd == 0:
                 pool_names = [r.effect for r in results]
@@ -737,8 +774,58 @@ def diagnose_experiments(
         "final_fits": current_fits,
         "final_validation_ms": current_ms,
         "skipped": skipped,
+        "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
     }
+
+
+def _refit_control(
+    ctx: _Ctx,
+    current: System,
+    results: Sequence[CandidateResult],
+    current_fits: Sequence[Fit],
+    current_ms: FloatArray,
+    rnd: int,
+    progress: bool,
+) -> tuple[list[Fit], FloatArray, list[float | None], dict[str, Any]] | None:
+    """The model before, refitted from the free values of each of the best
+    ``refit_control_top`` significant candidates: its fits, validation mean squares,
+    command residuals and a record for the report if one of them fits the training data
+    better than ``current_fits`` (by more than 0.1 % in mean square), else None."""
+    st = ctx.st
+    if not ctx.free or st.refit_control_top <= 0:
+        return None
+    saved = list(ctx.warm)
+
+    def train_ms(fits: Sequence[Fit]) -> float:
+        return float(np.mean([f.train_rms_m**2 for f in fits]))
+
+    best: tuple[list[Fit], FloatArray, list[float | None], dict[str, Any]] | None = None
+    before = train_ms(current_fits)
+    best_train = before * (1.0 - 1e-3)
+    try:
+        for r in [r for r in results if r.significant][: st.refit_control_top]:
+            ctx.warm[:] = [_free_values(f, ctx.free) for f in r.fold_fits]
+            fits, ms, _, cmd = ctx.fit_and_validate(current, (), lambda s, v: s, 1, st.seed)
+            t = train_ms(fits)
+            _progress(
+                f"  round {rnd + 1} refit control from {r.effect}'s free values: training "
+                f"{math.sqrt(t) * 1e9:.1f} nm (before {math.sqrt(before) * 1e9:.1f})",
+                progress,
+            )
+            if t < best_train:
+                record = {
+                    "round": rnd + 1,
+                    "restarted_from": r.effect,
+                    "train_rms_before_m": math.sqrt(before),
+                    "train_rms_after_m": math.sqrt(t),
+                    "validation_rms_before_m": math.sqrt(float(np.mean(current_ms))),
+                    "validation_rms_after_m": math.sqrt(float(np.mean(ms))),
+                }
+                best, best_train = (fits, ms, cmd, record), t
+    finally:
+        ctx.warm[:] = saved
+    return best
 
 
 def _free_values(fit: Fit, free: Sequence[tuple[str, Param]]) -> dict[str, float]:
@@ -786,6 +873,23 @@ def _judge(
             base, extra, cand.apply, st.n_starts_candidate, st.seed + index, screen
         )
         k_params = len(cand.params)
+    return _verdict(cand.name, fits, ms, cmd, setting, k_params, base_ms, base_cmd, ctx, index)
+
+
+def _verdict(
+    name: str,
+    fits: list[Fit],
+    ms: FloatArray,
+    cmd: list[float | None],
+    setting: int | None,
+    k_params: int,
+    base_ms: FloatArray,
+    base_cmd: Sequence[float | None],
+    ctx: _Ctx,
+    index: int,
+) -> CandidateResult:
+    """Judge fitted candidate results against the model before (``base_ms``)."""
+    st = ctx.st
     d = base_ms - ms
     p = _bootstrap_p(d, st.bootstrap, st.seed + 1000 + index)
     rms0 = math.sqrt(float(np.mean(base_ms)))
@@ -832,7 +936,7 @@ def _judge(
             + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
         )
     return CandidateResult(
-        effect=cand.name,
+        effect=name,
         fit=fits[0],
         fold_fits=fits,
         validation_ms=ms,
@@ -844,4 +948,6 @@ def _judge(
         significant=ok,
         reasons=reasons,
         setting=setting,
+        index=index,
+        k_params=k_params,
     )

@@ -434,6 +434,7 @@ def assemble_report(
         "evidence": evidence,
         "advice": experiment_advice(val + [e for t, _ in folds for e in t], lead_m, first, penalty),
         "skipped": dict(out["skipped"]),
+        "refit_control": list(out.get("refit_control", [])),
         "nominal_parameters": {
             n: {"value": v, "std_error": out["nominal"].std_errors.get(n)}
             for n, v in out["nominal"].values.items()
