@@ -285,6 +285,18 @@ def test_noise_floor_sees_quantisation_noise_and_repeats() -> None:
     ]
     floor = noise_floor_m(noisy, q)
     assert 2e-7 < floor < 4e-7  # white noise 2e-7, repeats differ by √2·2e-7
+    # The same step elsewhere on the travel is not a repeat (position-dependent friction
+    # makes it differ): two runs that differ by a slow drift count only at the same place.
+    drift = 3e-7 * np.sin(np.arange(500) / 40)
+    here = Experiment(name="h", time_s=t, reference_m=ref, position_m=np.floor(ref / q) * q)
+    there = Experiment(
+        name="t", time_s=t, reference_m=ref + 5e-3, position_m=np.floor((ref + drift) / q) * q
+    )
+    again = Experiment(
+        name="r", time_s=t, reference_m=ref, position_m=np.floor((ref + drift) / q) * q
+    )
+    assert noise_floor_m([here, there], q) == pytest.approx(q / np.sqrt(12))
+    assert noise_floor_m([here, again], q) > 3 * q / np.sqrt(12)
 
 
 def test_noise_floor_ignores_the_phase_of_a_limit_cycle_in_repeats() -> None:

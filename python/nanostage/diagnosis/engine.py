@@ -82,6 +82,8 @@ class DiagnosisSettings:
     refit_control_top: int = 2
     #: Points of the coarse scan over a candidate's own parameters before its local fits.
     scan_points: int = 12
+    #: Points of the coarse scan over the free parameters before the first calibration.
+    scan_points_nominal: int = 24
     seed: int = 0
     workers: int = 0  #: 0: one per CPU
 
@@ -173,8 +175,9 @@ class FitProblem:
         first start is every parameter's ``initial``; with ``prior`` (physical values, e.g.
         the preset's values of warm-started parameters) the second start is ``prior``; the
         others draw the parameters after the first ``n_warm`` (which keep their initial,
-        warm values) by Latin hypercube. With ``scan`` > 0 (and warm parameters), the gap is
-        first evaluated at ``scan`` Latin-hypercube points of the drawn parameters, and the
+        warm values) by Latin hypercube. With ``scan`` > 0, the gap is first evaluated at
+        ``scan`` Latin-hypercube points of the drawn parameters (all of them without warm
+        ones), and the
         best of them (if better than the warm start) is fitted first: instead of the warm
         start when only one start is allowed, else right after it."""
         k = len(self.params)
@@ -198,7 +201,7 @@ class FitProblem:
             if not np.allclose(second, first):
                 starts.append(second)
         n_draw = k - n_warm if k > n_warm else k
-        if scan > 0 and n_warm > 0 and n_draw > 0:
+        if scan > 0 and n_draw > 0:
             # A coarse global look at the drawn (effect) parameters before the local fits:
             # the closed loop's gap is rugged, and a start far from the right basin can end
             # in a poor local optimum. The best scanned point replaces the warm start when
@@ -440,8 +443,9 @@ def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
 def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
     """The gap a perfect model would leave, m: quantisation ``q/√12`` plus the white sensor
     noise estimated from the second differences of the measured readings where the
-    reference is at rest, raised to the spread of repeated experiments (same reference), if
-    any. The spread of two repeats is measured with :func:`gap_residual`, as the gap is."""
+    reference is at rest, raised to the spread of repeated experiments (the same reference
+    at the same positions), if any. The spread of two repeats is measured with
+    :func:`gap_residual`, as the gap is."""
     noise_var = []
     for e in experiments:
         rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
@@ -451,20 +455,19 @@ def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
             mad = float(np.median(np.abs(d2[m] - np.median(d2[m]))))
             noise_var.append((1.4826 * mad) ** 2 / 6.0)
     var = count_m**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
-    # Repeats: experiments with the same reference (up to a constant offset).
-    groups: dict[tuple[int, int], list[Experiment]] = {}
+    # Repeats: experiments with the same reference, at the same positions (the same step
+    # elsewhere on the travel is not a repeat: position-dependent friction makes it differ).
+    groups: dict[tuple[int, float], list[Experiment]] = {}
     for e in experiments:
-        key = (len(e.reference_m), round(float(np.sum(np.abs(np.diff(e.reference_m)))) / count_m))
+        key = (len(e.reference_m), round(float(e.reference_m[0]) / count_m))
         groups.setdefault(key, []).append(e)
     spreads = []
     for g in groups.values():
         for a, b in itertools.pairwise(g):
-            da = a.position_m - a.position_m[0]
-            db = b.position_m - b.position_m[0]
-            if np.allclose(np.diff(a.reference_m), np.diff(b.reference_m), atol=count_m / 10):
+            if np.allclose(a.reference_m, b.reference_m, rtol=0.0, atol=count_m / 10):
                 # Measured like the gap itself: sample by sample, but in holds as sorted
                 # values, so a limit cycle's phase (which no model predicts) is not scatter.
-                r = gap_residual(da, db, a.reference_m - a.position_m[0])
+                r = gap_residual(a.position_m, b.position_m, a.reference_m)
                 spreads.append(float(np.mean(r**2)) / 2.0)
     if spreads:
         var = max(var, float(np.median(spreads)))
@@ -614,7 +617,12 @@ class _Ctx:
                 seed,
                 n_warm=len(free) if warm else 0,
                 prior=prior if both else None,
-                scan=self.st.scan_points if params else 0,
+                # The first calibration of the model (no warm values) scans all its free
+                # parameters: it is cheap, and a poor local optimum there would make any
+                # candidate's refit look like an effect.
+                scan=self.st.scan_points
+                if params
+                else (0 if warm else self.st.scan_points_nominal),
             )
             res = prob.residuals(f.system, validate)
             fits.append(f)
