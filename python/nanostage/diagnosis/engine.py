@@ -80,8 +80,12 @@ class DiagnosisSettings:
     #: Significant candidates of a round whose free values restart the model before
     #: (refitting alone; 0 turns the control off).
     refit_control_top: int = 2
-    #: Points of the coarse scan over a candidate's own parameters before its local fits.
-    scan_points: int = 12
+    #: Points of the coarse scan over a candidate's own parameters before its local fits,
+    #: per parameter of the candidate (at most :attr:`scan_points_max`). The closed loop's
+    #: gap is rugged where stick-slip makes the response chaotic: on a dwell case the good
+    #: region of (rise, time constant) covered a few per cent of the box.
+    scan_points: int = 16
+    scan_points_max: int = 48
     #: Points of the coarse scan over the free parameters before the first calibration.
     scan_points_nominal: int = 24
     seed: int = 0
