@@ -18,7 +18,7 @@ import pytest
 
 import nanostage as ns
 from nanostage import presets
-from nanostage.config import Plant, System
+from nanostage.config import System
 from nanostage.diagnosis.benchmark import (
     BREAKAWAY_GAINS,
     DESIGN,
@@ -31,6 +31,7 @@ from nanostage.diagnosis.candidates import (
     NOT_CANDIDATES,
     Param,
     applicable_candidates,
+    motor_static_force_n,
 )
 from nanostage.diagnosis.engine import (
     FRICTION_MODELS,
@@ -176,10 +177,7 @@ def test_breakaway_tests_carry_the_dwell_signature_above_the_scatter() -> None:
     changes the response far more than two stochastic friction draws differ, and far more
     than it does under the Table 1 gains."""
     base = presets.seed(1e-3)
-    p = base.plant
-    assert isinstance(p, Plant)
-    eta = p.gearhead.efficiency * p.screw.efficiency
-    fs = eta * p.motor_friction.static_torque_nm / p.transmission_m_per_rad
+    fs = motor_static_force_n(base)
     noisy = dc.replace(
         base,
         effects=Effects(

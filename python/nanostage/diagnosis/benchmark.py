@@ -45,6 +45,7 @@ from ..effects import (
 )
 from ..experiment import Experiment
 from ..simulate import simulate
+from .candidates import motor_static_force_n
 from .engine import DiagnosisSettings
 from .run import diagnose
 from .traces import write_trace_csv
@@ -127,10 +128,7 @@ def _hidden(name: str, rng: np.random.Generator, base: System) -> tuple[System, 
     elif name == "dwell_static_friction":
         rise = float(rng.uniform(2.0, 5.0))  # relative to the motor-side static force
         tau = float(rng.uniform(0.05, 0.5))
-        p = base.plant
-        assert isinstance(p, Plant)
-        eta = p.gearhead.efficiency * p.screw.efficiency
-        fs = eta * p.motor_friction.static_torque_nm / p.transmission_m_per_rad
+        fs = motor_static_force_n(base)
         fx = dc.replace(
             fx,
             motor_friction=FrictionModifiers(

@@ -341,7 +341,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
 
     def dwell(sys: System) -> Candidate | str:
         _fc, fs = _table_levels(sys)
-        base = fs if isinstance(sys.plant, ForceDrivePlant) else _motor_static_n(sys)
+        base = fs if isinstance(sys.plant, ForceDrivePlant) else motor_static_force_n(sys)
         return Candidate(
             name="dwell_static_friction",
             params=(
@@ -647,7 +647,9 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
     }
 
 
-def _motor_static_n(sys: System) -> float:
+def motor_static_force_n(sys: System) -> float:
+    """The motor map's static torque as a force at the table (through the transmission and
+    its efficiencies), N."""
     p = sys.plant
     assert isinstance(p, Plant)
     r = p.transmission_m_per_rad
