@@ -42,6 +42,7 @@ from nanostage.diagnosis.engine import (
     _refit_control,
     gap_residual,
     hold_intervals,
+    move_units,
     noise_floor_m,
 )
 from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
@@ -264,6 +265,21 @@ def test_a_move_out_of_a_hunting_hold_is_compared_at_its_best_phase() -> None:
     assert np.array_equal(gap_residual(meas, sim, flat), meas - sim)
 
 
+def test_move_units_cut_an_experiment_into_its_moves() -> None:
+    """The bootstrap's units: one per move (the rest before the first move belongs to it);
+    a reference that never settles anew is one unit; the units' shares sum to the mean
+    square."""
+    ref = design_reference((1e-4, -1e-4, 3e-7), 0.0, (0.05, 0.3, 0.3))
+    units = move_units(ref)
+    assert units == [(0, 350), (350, 650), (650, len(ref))]
+    assert move_units(np.zeros(100)) == [(0, 100)]
+    ramp = np.r_[np.linspace(0.0, 1e-4, 200), np.full(100, 1e-4)]
+    assert move_units(ramp) == [(0, 300)]
+    r = np.random.default_rng(1).normal(size=len(ref))
+    shares = [float(np.sum(r[a:b] ** 2)) / len(r) for a, b in units]
+    assert sum(shares) == pytest.approx(float(np.mean(r**2)), rel=1e-12)
+
+
 def test_noise_floor_sees_quantisation_noise_and_repeats() -> None:
     q = 1e-7
     ref = np.zeros(500)
@@ -415,10 +431,12 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
 
     calls: list[float] = []
 
-    def fit_and_validate(*_: object) -> tuple[list[Fit], np.ndarray, list[object], list[None]]:
+    def fit_and_validate(
+        *_: object,
+    ) -> tuple[list[Fit], np.ndarray, list[object], list[None], np.ndarray]:
         v = ctx.warm[0][free[0][0]]
         calls.append(v)
-        return [fit_of(v)], np.array([landscape[v] ** 2]), [], [None]
+        return [fit_of(v)], np.array([landscape[v] ** 2]), [], [None], np.array([landscape[v] ** 2])
 
     ctx = SimpleNamespace(
         st=DiagnosisSettings(refit_control_top=2),
@@ -442,7 +460,8 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
     mixed = [result("c", 3.0, False), result("d", 7.0, True), result("e", 3.0, True)]
     out = _refit_control(cast(Any, ctx), ns.presets.seed(), mixed, current, ms, 1, False)
     assert out is not None and calls == [7.0, 3.0]
-    fits, new_ms, _, record = out
+    fits, new_ms, _, units, record = out
+    assert units[0] == new_ms[0]
     assert fits[0].train_rms_m == 1e-8 and new_ms[0] == pytest.approx(1e-16)
     assert record["restarted_from"] == "e" and record["round"] == 2
     assert record["train_rms_after_m"] < record["train_rms_before_m"]

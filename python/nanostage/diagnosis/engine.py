@@ -318,6 +318,16 @@ UNSETTLED_STEP_FRACTION = 0.02
 SETTLE_WINDOW = 50
 
 
+def move_units(reference_m: npt.ArrayLike) -> list[tuple[int, int]]:
+    """The experiment cut into its moves, (start, stop) each: a new unit starts where the
+    reference settles at a new value (each hold after the first); the rest before the first
+    move belongs to the first unit. A reference without holds is one unit."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    starts = [a for a, _ in hold_intervals(ref) if a > 0]
+    bounds = [0, *starts[1:], len(ref)] if starts else [0, len(ref)]
+    return list(itertools.pairwise(bounds))
+
+
 def _quantum(m: FloatArray) -> float:
     d = np.abs(np.diff(m))
     d = d[d > 0]
@@ -502,6 +512,8 @@ class CandidateResult:
     #: (the complexity penalty), kept so that it can be judged again against a new baseline.
     index: int = 0
     k_params: int = 0
+    #: Each validation move's share of the mean square (the bootstrap's units).
+    validation_units: FloatArray | None = None
 
     def to_dict(self, params: Sequence[tuple[str, Param]]) -> dict[str, Any]:
         units = {n: p.unit for n, p in params}
@@ -529,7 +541,8 @@ class CandidateResult:
 
 
 def _bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:
-    """Fraction of bootstrap resamples (over experiments) with mean reduction ≤ 0."""
+    """Fraction of bootstrap resamples (of the units: validation moves) with mean reduction
+    ≤ 0."""
     if len(d) == 0:
         return 1.0
     rng = np.random.default_rng(seed)
@@ -590,11 +603,14 @@ class _Ctx:
         n_starts: int,
         seed: int,
         screen: bool = False,
-    ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None]]:
+    ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
-        (concatenated over folds), the validation residuals per fold, and the mean-square
-        command residual of each validation experiment (None without a measured command)."""
+        (concatenated over folds), the validation residuals per fold, the mean-square
+        command residual of each validation experiment (None without a measured command),
+        and each validation move's share of its experiment's mean square (:func:`move_units`;
+        they sum to the experiment's)."""
         fits, ms, residuals = [], [], []
+        units: list[float] = []
         command: list[float | None] = []
         for i, (train, validate) in enumerate(self.folds):
             warm = self.warm[i] if i < len(self.warm) else {}
@@ -624,7 +640,7 @@ class _Ctx:
                 # The first calibration of the model (no warm values) scans all its free
                 # parameters: it is cheap, and a poor local optimum there would make any
                 # candidate's refit look like an effect.
-                scan=self.st.scan_points
+                scan=min(self.st.scan_points * len(params), self.st.scan_points_max)
                 if params
                 else (0 if warm else self.st.scan_points_nominal),
             )
@@ -632,8 +648,10 @@ class _Ctx:
             fits.append(f)
             residuals.append(res)
             ms += [float(np.mean(r**2)) for r in res]
+            for e, r in zip(validate, res, strict=True):
+                units += [float(np.sum(r[a:b] ** 2)) / len(r) for a, b in move_units(e.reference_m)]
             command += prob.last_command_ms
-        return fits, np.array(ms), residuals, command
+        return fits, np.array(ms), residuals, command, np.array(units)
 
 
 def diagnose_experiments(
@@ -676,7 +694,7 @@ def diagnose_experiments(
             f"{len(folds)} fold(s))",
             progress,
         )
-        nominal_fits, base_ms, _, base_cmd = ctx.fit_and_validate(
+        nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
             nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
         )
         ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
@@ -687,6 +705,7 @@ def diagnose_experiments(
         current_fits = nominal_fits
         current_ms = base_ms
         current_cmd = base_cmd
+        current_units: FloatArray | None = base_units
         cands, skipped = applicable_candidates(nominal, candidates)
         pool_names = [c.name for c in cands]
         for rnd in range(st.forward_rounds):
@@ -698,7 +717,9 @@ def diagnose_experiments(
             for i, cand in enumerate(cand_now):
                 t0 = time.perf_counter()
                 try:
-                    r = _judge(cand, current, current_ms, current_cmd, ctx, i, screen=True)
+                    r = _judge(
+                        cand, current, current_ms, current_cmd, current_units, ctx, i, screen=True
+                    )
                 except (ValueError, RuntimeError) as exc:
                     # An invalid combination with the effects already selected, or a
                     # simulation failing at the start values: reported, not fatal.
@@ -721,7 +742,9 @@ def diagnose_experiments(
                 i, cand = by_name[r.effect]
                 t0 = time.perf_counter()
                 try:
-                    results[j] = _judge(cand, current, current_ms, current_cmd, ctx, i)
+                    results[j] = _judge(
+                        cand, current, current_ms, current_cmd, current_units, ctx, i
+                    )
                 except (ValueError, RuntimeError) as exc:
                     skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
                     continue
@@ -739,11 +762,11 @@ def diagnose_experiments(
             # training fit becomes the baseline, and every candidate is judged again.
             better = _refit_control(ctx, current, results, current_fits, current_ms, rnd, progress)
             if better is not None:
-                current_fits, current_ms, current_cmd, record = better
+                current_fits, current_ms, current_cmd, current_units, record = better
                 refits.append(record)
                 ctx.warm[:] = [_free_values(f, free) for f in current_fits]
                 if rnd == 0:
-                    nominal_fits, base_ms, base_cmd = current_fits, current_ms, current_cmd
+                    nominal_fits, base_ms = current_fits, current_ms
                 results = [
                     _verdict(
                         r.effect,
@@ -756,6 +779,8 @@ def diagnose_experiments(
                         current_cmd,
                         ctx,
                         r.index,
+                        r.validation_units,
+                        current_units,
                     )
                     for r in results
                 ]
@@ -775,6 +800,7 @@ def diagnose_experiments(
             ctx.warm[:] = [_free_values(f, free) for f in best.fold_fits]
             current_ms = best.validation_ms
             current_cmd = best.validation_command_ms
+            current_units = best.validation_units
     return {
         "nominal": nominal_fits[0],
         "nominal_fits": nominal_fits,
@@ -799,7 +825,7 @@ def _refit_control(
     current_ms: FloatArray,
     rnd: int,
     progress: bool,
-) -> tuple[list[Fit], FloatArray, list[float | None], dict[str, Any]] | None:
+) -> tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None:
     """The model before, refitted from the free values of each of the best
     ``refit_control_top`` significant candidates: its fits, validation mean squares,
     command residuals and a record for the report if one of them fits the training data
@@ -812,13 +838,13 @@ def _refit_control(
     def train_ms(fits: Sequence[Fit]) -> float:
         return float(np.mean([f.train_rms_m**2 for f in fits]))
 
-    best: tuple[list[Fit], FloatArray, list[float | None], dict[str, Any]] | None = None
+    best: tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None = None
     before = train_ms(current_fits)
     best_train = before * (1.0 - 1e-3)
     try:
         for r in [r for r in results if r.significant][: st.refit_control_top]:
             ctx.warm[:] = [_free_values(f, ctx.free) for f in r.fold_fits]
-            fits, ms, _, cmd = ctx.fit_and_validate(current, (), lambda s, v: s, 1, st.seed)
+            fits, ms, _, cmd, units = ctx.fit_and_validate(current, (), lambda s, v: s, 1, st.seed)
             t = train_ms(fits)
             _progress(
                 f"  round {rnd + 1} refit control from {r.effect}'s free values: training "
@@ -834,7 +860,7 @@ def _refit_control(
                     "validation_rms_before_m": math.sqrt(float(np.mean(current_ms))),
                     "validation_rms_after_m": math.sqrt(float(np.mean(ms))),
                 }
-                best, best_train = (fits, ms, cmd, record), t
+                best, best_train = (fits, ms, cmd, units, record), t
     finally:
         ctx.warm[:] = saved
     return best
@@ -857,6 +883,7 @@ def _judge(
     base: System,
     base_ms: FloatArray,
     base_cmd: Sequence[float | None],
+    base_units: FloatArray | None,
     ctx: _Ctx,
     index: int,
     screen: bool = False,
@@ -867,25 +894,40 @@ def _judge(
     extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
     setting: int | None = None
     if cand.discrete:
-        best: tuple[list[Fit], FloatArray, list[float | None], int] | None = None
+        best: tuple[list[Fit], FloatArray, list[float | None], int, FloatArray] | None = None
         for k in cand.discrete:
 
             def fixed(s: System, v: Sequence[float], k: int = k) -> System:
                 return cand.apply(s, [k])
 
-            fits, ms, _, cmd = ctx.fit_and_validate(base, (), fixed, 1, st.seed + index, screen)
+            fits, ms, _, cmd, units = ctx.fit_and_validate(
+                base, (), fixed, 1, st.seed + index, screen
+            )
             train = float(np.mean([f.train_rms_m for f in fits]))
             if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
-                best = (fits, ms, cmd, k)
+                best = (fits, ms, cmd, k, units)
         assert best is not None
-        fits, ms, cmd, setting = best
+        fits, ms, cmd, setting, units = best
         k_params = 1
     else:
-        fits, ms, _, cmd = ctx.fit_and_validate(
+        fits, ms, _, cmd, units = ctx.fit_and_validate(
             base, extra, cand.apply, st.n_starts_candidate, st.seed + index, screen
         )
         k_params = len(cand.params)
-    return _verdict(cand.name, fits, ms, cmd, setting, k_params, base_ms, base_cmd, ctx, index)
+    return _verdict(
+        cand.name,
+        fits,
+        ms,
+        cmd,
+        setting,
+        k_params,
+        base_ms,
+        base_cmd,
+        ctx,
+        index,
+        units,
+        base_units,
+    )
 
 
 def _verdict(
@@ -899,11 +941,20 @@ def _verdict(
     base_cmd: Sequence[float | None],
     ctx: _Ctx,
     index: int,
+    units: FloatArray | None = None,
+    base_units: FloatArray | None = None,
 ) -> CandidateResult:
-    """Judge fitted candidate results against the model before (``base_ms``)."""
+    """Judge fitted candidate results against the model before (``base_ms``). The bootstrap
+    resamples validation moves (``units``/``base_units``) when both are given, else
+    experiments."""
     st = ctx.st
     d = base_ms - ms
-    p = _bootstrap_p(d, st.bootstrap, st.seed + 1000 + index)
+    du = (
+        base_units - units
+        if units is not None and base_units is not None and len(units) == len(base_units)
+        else d
+    )
+    p = _bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
     rms0 = math.sqrt(float(np.mean(base_ms)))
     rms1 = math.sqrt(float(np.mean(ms)))
     shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
@@ -962,4 +1013,5 @@ def _verdict(
         setting=setting,
         index=index,
         k_params=k_params,
+        validation_units=units,
     )
