@@ -311,6 +311,15 @@ def test_noise_floor_sees_quantisation_noise_and_repeats() -> None:
     )
     assert noise_floor_m([here, there], q) == pytest.approx(q / np.sqrt(12))
     assert noise_floor_m([here, again], q) > 3 * q / np.sqrt(12)
+    # Several pairs: the mean of their spreads (mean squares), as the gap averages.
+    quiet = [
+        Experiment(name=f"q{i}", time_s=t, reference_m=ref + 9e-3, position_m=ref + 9e-3)
+        for i in range(2)
+    ]
+    one = noise_floor_m([here, again], q) ** 2
+    assert noise_floor_m([here, again, *quiet], q) ** 2 == pytest.approx(
+        max(q**2 / 12, one / 2), rel=1e-9
+    )
 
 
 def test_noise_floor_ignores_the_phase_of_a_limit_cycle_in_repeats() -> None:
