@@ -147,6 +147,107 @@ struct Narrow {
     out_max: Exact64,
 }
 
+/// The state an update reads and writes, and the integrator's clamp bounds.
+struct NarrowState {
+    acc: i64,
+    y_prev: Option<i64>,
+    acc_min: i64,
+    acc_max: i64,
+}
+
+impl Narrow {
+    /// [`Pid::update`] with every exact intermediate in `i64` ([`Exact64`]); the same result
+    /// bit for bit when `narrow_cfg` is the configuration and both readings are below
+    /// [`NARROW_INPUT`] in magnitude (every value then fits in 62 bits, so no operation
+    /// wraps, and [`FxpFormat::requantize64`] equals [`FxpFormat::requantize`]).
+    fn update(&self, st: &mut NarrowState, r_counts: i64, y_counts: i64) -> PidOutput {
+        let n = self;
+        use flags::*;
+        let (kp, ki, kd, dac_scale, out_min, out_max) =
+            (n.kp, n.ki, n.kd, n.dac_scale, n.out_min, n.out_max);
+        let mut fl = 0u32;
+        let (y, o) = n.measurement.requantize(Exact64::int(y_counts));
+        fl |= if o { Y_OVERFLOW } else { 0 };
+        let y_ex = n.measurement.exact(y);
+        let y_prev = st.y_prev.unwrap_or(y);
+        let (e, o) = n
+            .error
+            .requantize(Exact64::int(r_counts).add_exact(y_ex.neg_exact()));
+        fl |= if o { E_OVERFLOW } else { 0 };
+        let (dy, o) = n
+            .error
+            .requantize(y_ex.add_exact(n.measurement.exact(y_prev).neg_exact()));
+        fl |= if o { D_OVERFLOW } else { 0 };
+        let e_ex = n.error.exact(e);
+        let (p, o) = n.term.requantize(kp.mul_exact(e_ex));
+        fl |= if o { P_OVERFLOW } else { 0 };
+        let (d, o) = n
+            .term
+            .requantize(kd.mul_exact(n.error.exact(dy)).neg_exact());
+        fl |= if o { D_OVERFLOW } else { 0 };
+        let inc = ki.mul_exact(e_ex);
+        let (cand, o) = n
+            .integrator
+            .requantize(n.integrator.exact(st.acc).add_exact(inc));
+        fl |= if o { I_OVERFLOW } else { 0 };
+        let p_ex = n.term.exact(p);
+        let d_ex = n.term.exact(d);
+        let cand_ex = n.integrator.exact(cand);
+        let acc = match n.key.anti_windup {
+            AntiWindup::None => cand,
+            AntiWindup::Clamp => {
+                if cand > st.acc_max {
+                    fl |= INTEGRATOR_HELD;
+                    st.acc_max
+                } else if cand < st.acc_min {
+                    fl |= INTEGRATOR_HELD;
+                    st.acc_min
+                } else {
+                    cand
+                }
+            }
+            AntiWindup::Conditional => {
+                let trial = p_ex.add_exact(cand_ex).add_exact(d_ex);
+                let zero = Exact64::int(0);
+                let above = trial.cmp_value(out_max) == Ordering::Greater
+                    && inc.cmp_value(zero) == Ordering::Greater;
+                let below = trial.cmp_value(out_min) == Ordering::Less
+                    && inc.cmp_value(zero) == Ordering::Less;
+                if above || below {
+                    fl |= INTEGRATOR_HELD;
+                    st.acc
+                } else {
+                    cand
+                }
+            }
+        };
+        st.acc = acc;
+        st.y_prev = Some(y);
+        let sum = p_ex.add_exact(n.integrator.exact(acc)).add_exact(d_ex);
+        let (mut u, o) = n.output.requantize(sum);
+        fl |= if o { U_OVERFLOW } else { 0 };
+        let u_ex = n.output.exact(u);
+        if u_ex.cmp_value(out_max) == Ordering::Greater {
+            u = out_max.raw;
+            fl |= U_SATURATED;
+        } else if u_ex.cmp_value(out_min) == Ordering::Less {
+            u = out_min.raw;
+            fl |= U_SATURATED;
+        }
+        let (code, o) = n.dac.requantize(n.output.exact(u).mul_exact(dac_scale));
+        fl |= if o { DAC_OVERFLOW } else { 0 };
+        PidOutput {
+            e,
+            p,
+            i: acc,
+            d,
+            u,
+            code,
+            flags: fl,
+        }
+    }
+}
+
 /// The fields of a [`PidConfig`] that [`Pid::update`] reads (the gains, output range and DAC
 /// scale are quantised at construction).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -184,7 +285,9 @@ const NARROW_INPUT: i64 = 1 << 40;
 /// inputs (a settled loop: zero error, no motion) returns the stored result.
 #[derive(Debug, Clone, Copy)]
 struct Memo {
-    cfg: PidConfig,
+    /// The fields of `cfg` the update read (it reads no other; the rest is quantised at
+    /// construction).
+    key: ArithmeticKey,
     r_counts: i64,
     y_counts: i64,
     acc: i64,
@@ -333,7 +436,7 @@ impl Pid {
                 && m.y_counts == y_counts
                 && m.acc == self.acc
                 && m.y_prev == self.y_prev
-                && m.cfg == self.cfg
+                && m.key == ArithmeticKey::of(&self.cfg)
             {
                 self.acc = m.acc_after;
                 self.y_prev = m.y_prev_after;
@@ -341,18 +444,27 @@ impl Pid {
             }
         }
         let (acc, y_prev) = (self.acc, self.y_prev);
-        let out = match self.narrow {
+        let key = ArithmeticKey::of(&self.cfg);
+        let out = match &self.narrow {
             Some(n)
                 if r_counts.unsigned_abs() < NARROW_INPUT.unsigned_abs()
                     && y_counts.unsigned_abs() < NARROW_INPUT.unsigned_abs()
-                    && n.key == ArithmeticKey::of(&self.cfg) =>
+                    && n.key == key =>
             {
-                self.update_narrow(&n, r_counts, y_counts)
+                let mut st = NarrowState {
+                    acc: self.acc,
+                    y_prev: self.y_prev,
+                    acc_min: self.acc_min,
+                    acc_max: self.acc_max,
+                };
+                let out = n.update(&mut st, r_counts, y_counts);
+                (self.acc, self.y_prev) = (st.acc, st.y_prev);
+                out
             }
             _ => self.update(r_counts, y_counts),
         };
         self.memo = Some(Memo {
-            cfg: self.cfg,
+            key,
             r_counts,
             y_counts,
             acc,
@@ -441,96 +553,6 @@ impl Pid {
         let (code, o) = c
             .dac_format
             .requantize(c.output_format.exact(u).mul_exact(self.dac_scale));
-        fl |= if o { DAC_OVERFLOW } else { 0 };
-        PidOutput {
-            e,
-            p,
-            i: acc,
-            d,
-            u,
-            code,
-            flags: fl,
-        }
-    }
-
-    /// [`Self::update`] with every exact intermediate in `i64` ([`Exact64`]); the same result
-    /// bit for bit when `narrow_cfg` is the configuration and both readings are below
-    /// [`NARROW_INPUT`] in magnitude (every value then fits in 62 bits, so no operation
-    /// wraps, and [`FxpFormat::requantize64`] equals [`FxpFormat::requantize`]).
-    fn update_narrow(&mut self, n: &Narrow, r_counts: i64, y_counts: i64) -> PidOutput {
-        use flags::*;
-        let (kp, ki, kd, dac_scale, out_min, out_max) =
-            (n.kp, n.ki, n.kd, n.dac_scale, n.out_min, n.out_max);
-        let mut fl = 0u32;
-        let (y, o) = n.measurement.requantize(Exact64::int(y_counts));
-        fl |= if o { Y_OVERFLOW } else { 0 };
-        let y_ex = n.measurement.exact(y);
-        let y_prev = self.y_prev.unwrap_or(y);
-        let (e, o) = n
-            .error
-            .requantize(Exact64::int(r_counts).add_exact(y_ex.neg_exact()));
-        fl |= if o { E_OVERFLOW } else { 0 };
-        let (dy, o) = n
-            .error
-            .requantize(y_ex.add_exact(n.measurement.exact(y_prev).neg_exact()));
-        fl |= if o { D_OVERFLOW } else { 0 };
-        let e_ex = n.error.exact(e);
-        let (p, o) = n.term.requantize(kp.mul_exact(e_ex));
-        fl |= if o { P_OVERFLOW } else { 0 };
-        let (d, o) = n
-            .term
-            .requantize(kd.mul_exact(n.error.exact(dy)).neg_exact());
-        fl |= if o { D_OVERFLOW } else { 0 };
-        let inc = ki.mul_exact(e_ex);
-        let (cand, o) = n
-            .integrator
-            .requantize(n.integrator.exact(self.acc).add_exact(inc));
-        fl |= if o { I_OVERFLOW } else { 0 };
-        let p_ex = n.term.exact(p);
-        let d_ex = n.term.exact(d);
-        let cand_ex = n.integrator.exact(cand);
-        let acc = match n.key.anti_windup {
-            AntiWindup::None => cand,
-            AntiWindup::Clamp => {
-                if cand > self.acc_max {
-                    fl |= INTEGRATOR_HELD;
-                    self.acc_max
-                } else if cand < self.acc_min {
-                    fl |= INTEGRATOR_HELD;
-                    self.acc_min
-                } else {
-                    cand
-                }
-            }
-            AntiWindup::Conditional => {
-                let trial = p_ex.add_exact(cand_ex).add_exact(d_ex);
-                let zero = Exact64::int(0);
-                let above = trial.cmp_value(out_max) == Ordering::Greater
-                    && inc.cmp_value(zero) == Ordering::Greater;
-                let below = trial.cmp_value(out_min) == Ordering::Less
-                    && inc.cmp_value(zero) == Ordering::Less;
-                if above || below {
-                    fl |= INTEGRATOR_HELD;
-                    self.acc
-                } else {
-                    cand
-                }
-            }
-        };
-        self.acc = acc;
-        self.y_prev = Some(y);
-        let sum = p_ex.add_exact(n.integrator.exact(acc)).add_exact(d_ex);
-        let (mut u, o) = n.output.requantize(sum);
-        fl |= if o { U_OVERFLOW } else { 0 };
-        let u_ex = n.output.exact(u);
-        if u_ex.cmp_value(out_max) == Ordering::Greater {
-            u = out_max.raw;
-            fl |= U_SATURATED;
-        } else if u_ex.cmp_value(out_min) == Ordering::Less {
-            u = out_min.raw;
-            fl |= U_SATURATED;
-        }
-        let (code, o) = n.dac.requantize(n.output.exact(u).mul_exact(dac_scale));
         fl |= if o { DAC_OVERFLOW } else { 0 };
         PidOutput {
             e,
