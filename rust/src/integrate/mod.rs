@@ -51,4 +51,9 @@ pub trait OdeSystem<const N: usize> {
     fn event(&self, _y: &SVector<f64, N>) -> Option<f64> {
         None
     }
+    /// Rate of the event function along the solution, `∇g(y)·f(y)`, given `f = f(y)`
+    /// (`None`: not known; event location then uses values alone).
+    fn event_rate(&self, _y: &SVector<f64, N>, _f: &SVector<f64, N>) -> Option<f64> {
+        None
+    }
 }

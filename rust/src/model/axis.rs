@@ -243,6 +243,14 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
         Some(V)
     }
 
+    /// Slip: g = v·d, so g' = v'·d. Stuck: not given.
+    fn event_rate(&self, _y: &State, f: &State) -> Option<f64> {
+        match self.mode {
+            Mode::Slip(d) => Some(f[V] * d),
+            Mode::Stuck => None,
+        }
+    }
+
     fn event(&self, y: &State) -> Option<f64> {
         match self.mode {
             Mode::Slip(d) => Some(y[V] * d),
