@@ -186,6 +186,57 @@ impl Segment<'_> {
         dy[I] = (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w) / m.inductance_h;
     }
 
+    /// [`OdeSystem::rhs_and_jacobian`] in slip for an axis with `seed_laws`:
+    /// [`StribeckFriction::torque`] with δ = 2 and `T_s ≠ T_c`, [`DahlFriction::rate`] with
+    /// exponent 1, then [`Self::slip_rhs`] and [`Self::slip_jacobian`] with the current as a
+    /// state, written out without the checks for the other cases (the same operations in the
+    /// same order).
+    ///
+    /// [`StribeckFriction::torque`]: super::params::StribeckFriction::torque
+    /// [`DahlFriction::rate`]: super::params::DahlFriction::rate
+    #[inline(always)]
+    fn seed_slip_rhs_and_jacobian(&self, y: &State, d: f64, dy: &mut State, jac: &mut Jac) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let f = &p.motor_friction;
+        let r = a.transmission_m_per_rad;
+        // StribeckFriction::torque.
+        let w = y[V] / r;
+        let ws = f.stribeck_velocity_rad_per_s;
+        let span = a.stribeck_span_nm;
+        let q = (w.abs() / ws).max(1e-12);
+        let e = if q * q > 746.0 { 0.0 } else { (-q * q).exp() };
+        let de_dw = -e * 2.0 * q * w.signum() / ws;
+        let tf = d * (f.coulomb_torque_nm + span * e) + f.viscous_nm_s_per_rad * w;
+        let dtf_dw = d * span * de_dw + f.viscous_nm_s_per_rad;
+        // DahlFriction::rate.
+        let sigma = p.dahl.stiffness_n_per_m;
+        let fc = p.dahl.coulomb_force_n;
+        let qz = 1.0 - y[Z] * d / fc;
+        let (dz, dz_dv, dz_dz) = (sigma * y[V] * qz, sigma * qz, -sigma * y[V] * d / fc);
+        // slip_rhs.
+        let f_drive = a.efficiency * (m.torque_constant_nm_per_a * y[I] - tf) / r;
+        dy[X] = y[V];
+        dy[V] = (f_drive - y[Z] - p.table.external_force_n) / a.equivalent_mass_kg;
+        dy[Z] = dz;
+        dy[I] = (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w) / m.inductance_h;
+        // slip_jacobian.
+        jac.fill(0.0);
+        let meq = a.equivalent_mass_kg;
+        let kt = m.torque_constant_nm_per_a;
+        let di_dv = 0.0;
+        let df_dv = a.efficiency * (kt * di_dv - dtf_dw / r) / r;
+        jac[(X, V)] = 1.0;
+        jac[(V, V)] = df_dv / meq;
+        jac[(V, Z)] = -1.0 / meq;
+        jac[(Z, V)] = dz_dv;
+        jac[(Z, Z)] = dz_dz;
+        jac[(V, I)] = a.efficiency * kt / (r * meq);
+        jac[(I, V)] = -m.back_emf_v_s_per_rad / (r * m.inductance_h);
+        jac[(I, I)] = -m.resistance_ohm / m.inductance_h;
+    }
+
     /// The slip Jacobian given ∂T_f/∂w and the Dahl rate's partial derivatives.
     #[inline(always)]
     fn slip_jacobian(&self, dtf_dw: f64, dz_dv: f64, dz_dz: f64, jac: &mut Jac) {
@@ -250,6 +301,7 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                 self.rhs(y, dy);
                 self.jacobian(y, jac);
             }
+            Mode::Slip(d) if self.axis.seed_laws => self.seed_slip_rhs_and_jacobian(y, d, dy, jac),
             Mode::Slip(d) => {
                 // One friction evaluation (an exponential) for both.
                 let p = &self.axis.params;
@@ -510,11 +562,12 @@ impl Plant {
 
 #[cfg(test)]
 mod tests {
-    use super::{Axis, Mode, Segment, State, V};
+    use super::{Axis, Jac, Mode, Segment, State, V};
     use crate::integrate::OdeSystem;
     use crate::presets::seed_axis;
 
-    /// The seed-law slip right-hand side equals the general one bit for bit: states from rest
+    /// The seed-law slip right-hand side (alone and with the Jacobian) equals the general one
+    /// bit for bit: states from rest
     /// to slewing speed (through the Stribeck range and past the exponential's cut-off), Dahl
     /// forces across ±F_c, both directions, friction levels scaled as in a campaign.
     #[test]
@@ -558,6 +611,25 @@ mod tests {
                         "{y} d {d} u {u_v} (v {})",
                         y[V]
                     );
+                }
+                let (mut ja, mut jb) = (Jac::zeros(), Jac::zeros());
+                Segment {
+                    axis: &fast,
+                    mode: Mode::Slip(d),
+                    u_v,
+                }
+                .rhs_and_jacobian(&y, &mut a, &mut ja);
+                Segment {
+                    axis: &general,
+                    mode: Mode::Slip(d),
+                    u_v,
+                }
+                .rhs_and_jacobian(&y, &mut b, &mut jb);
+                for i in 0..4 {
+                    assert_eq!(a[i].to_bits(), b[i].to_bits(), "{y} d {d} u {u_v}");
+                    for j in 0..4 {
+                        assert_eq!(ja[(i, j)].to_bits(), jb[(i, j)].to_bits(), "{y} d {d}");
+                    }
                 }
             }
         }
