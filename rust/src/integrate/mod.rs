@@ -8,7 +8,9 @@
 //! Step size: error-controlled with an embedded order-3 estimate; the integrator steps
 //! exactly to the end of each segment (the input is held constant inside a segment).
 //! State events (a sign change of [`OdeSystem::event`]) end a segment early; they are
-//! located by the Illinois method on the step size.
+//! located on the step size by the Illinois method, started at the root of the step's cubic
+//! Hermite interpolant of the event function (where [`OdeSystem::event_rate`] is given) and
+//! closed from both sides by Newton trials just past the root.
 
 mod arrow;
 mod lu;
