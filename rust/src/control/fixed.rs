@@ -167,6 +167,20 @@ impl FxpFormat {
         (narrow(out), true)
     }
 
+    /// This format's constants for the `i64` path ([`Format64`]).
+    pub fn narrow64(&self) -> Format64 {
+        Format64 {
+            frac: self.frac_bits(),
+            // A format has at most 64 bits (validated), so its range fits in i64.
+            lo: narrow(self.raw_min()),
+            hi: narrow(self.raw_max()),
+            word_bits: self.word_bits,
+            signed: self.signed,
+            rounding: self.rounding,
+            overflow: self.overflow,
+        }
+    }
+
     /// The exact value of a raw number in this format.
     pub fn exact(&self, raw: i64) -> Exact {
         Exact {
@@ -220,6 +234,59 @@ fn wrap(v: i128, bits: u32, signed: bool) -> i128 {
         low.wrapping_shr(pad)
     } else {
         ((low as u128).wrapping_shr(pad)) as i128
+    }
+}
+
+/// [`wrap`] of a value held in `i64` (`bits` ≤ 64): the same low bits.
+fn wrap64(v: i64, bits: u32, signed: bool) -> i64 {
+    let pad = 64u32.saturating_sub(bits);
+    let low = v.wrapping_shl(pad);
+    if signed {
+        low.wrapping_shr(pad)
+    } else {
+        ((low as u64).wrapping_shr(pad)) as i64
+    }
+}
+
+/// [`round_shift_right`] for any `i64`: `raw / 2^s` rounded by `mode`.
+fn round_shift_right64(raw: i64, s: u32, mode: Rounding) -> i64 {
+    if s >= 64 {
+        // |raw| ≤ 2^63 ≤ 2^(s−1): the quotient is in [−1/2, 1/2]; −1/2 (raw = i64::MIN at
+        // s = 64) rounds to 0 half-up and half-even, as every other value does.
+        return match mode {
+            Rounding::Truncate => {
+                if raw < 0 {
+                    -1
+                } else {
+                    0
+                }
+            }
+            Rounding::HalfUp | Rounding::HalfEven => 0,
+        };
+    }
+    if s == 0 {
+        return raw;
+    }
+    let q = raw.wrapping_shr(s); // floor
+                                 // In [0, 2^s) (as u64: 2^63 does not fit i64 at s = 63).
+    let rem = (raw as u64).wrapping_sub((q as u64).wrapping_shl(s));
+    let half = 1u64.wrapping_shl(s.wrapping_sub(1));
+    match mode {
+        Rounding::Truncate => q,
+        Rounding::HalfUp => {
+            if rem >= half {
+                q.wrapping_add(1)
+            } else {
+                q
+            }
+        }
+        Rounding::HalfEven => {
+            if rem > half || (rem == half && (q & 1) == 1) {
+                q.wrapping_add(1)
+            } else {
+                q
+            }
+        }
     }
 }
 
@@ -309,6 +376,145 @@ impl Exact {
         let f = self.frac.max(o.frac);
         self.align(f).cmp(&o.align(f))
     }
+}
+
+/// A validated format's constants for the `i64` path of the PID ([`Exact64`]): fraction
+/// bits and raw range precomputed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Format64 {
+    frac: i32,
+    lo: i64,
+    hi: i64,
+    word_bits: u32,
+    signed: bool,
+    rounding: Rounding,
+    overflow: Overflow,
+}
+
+impl Format64 {
+    /// [`FxpFormat::requantize`] of an exact value held in `i64`: the same result and
+    /// overflow flag, bit for bit, for every raw value and fraction. Shifts the `i128`
+    /// version makes past 63 bits are decided the way it decides them: a left shift of a
+    /// nonzero value by 64 or more overflows every format of at most 64 bits (its low 64
+    /// bits, which wrapping keeps, are zero); a right shift by 64 or more leaves a quotient in
+    /// [−1/2, 1/2].
+    #[inline]
+    pub fn requantize(&self, x: Exact64) -> (i64, bool) {
+        let raw = x.raw;
+        let diff = self.frac.wrapping_sub(x.frac);
+        let (value, shift_overflow) = if diff >= 0 {
+            let s = diff.unsigned_abs();
+            if s >= 64 {
+                (0i64, raw != 0)
+            } else {
+                let shifted = raw.wrapping_shl(s);
+                (shifted, shifted.wrapping_shr(s) != raw)
+            }
+        } else {
+            (
+                round_shift_right64(raw, diff.unsigned_abs(), self.rounding),
+                false,
+            )
+        };
+        let (lo, hi) = (self.lo, self.hi);
+        if !shift_overflow && value >= lo && value <= hi {
+            return (value, false);
+        }
+        let out = match self.overflow {
+            Overflow::Saturate => {
+                let negative = if shift_overflow { raw < 0 } else { value < lo };
+                if negative {
+                    lo
+                } else {
+                    hi
+                }
+            }
+            Overflow::Wrap => wrap64(value, self.word_bits, self.signed),
+        };
+        (out, true)
+    }
+
+    /// The exact value of a raw number in this format.
+    #[inline]
+    pub fn exact(&self, raw: i64) -> Exact64 {
+        Exact64 {
+            raw,
+            frac: self.frac,
+        }
+    }
+}
+
+/// An exact intermediate `raw · 2^−frac` held in `i64`: [`Exact`]'s operations, for callers
+/// that have proved (by shape, [`fits64`]) that every value they form fits in 62 bits with
+/// its sign, so that each result equals the `i128` one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Exact64 {
+    /// Raw integer.
+    pub raw: i64,
+    /// Fraction bits.
+    pub frac: i32,
+}
+
+impl Exact64 {
+    /// An exact integer.
+    #[inline]
+    pub fn int(v: i64) -> Self {
+        Self { raw: v, frac: 0 }
+    }
+
+    /// Exact product (fraction bits add).
+    #[inline]
+    pub fn mul_exact(self, o: Self) -> Self {
+        Self {
+            raw: self.raw.wrapping_mul(o.raw),
+            frac: self.frac.wrapping_add(o.frac),
+        }
+    }
+
+    /// Exact negation.
+    #[inline]
+    pub fn neg_exact(self) -> Self {
+        Self {
+            raw: self.raw.wrapping_neg(),
+            frac: self.frac,
+        }
+    }
+
+    /// Exact sum, aligned to the larger fraction.
+    #[inline]
+    pub fn add_exact(self, o: Self) -> Self {
+        let f = self.frac.max(o.frac);
+        Self {
+            raw: self.align(f).wrapping_add(o.align(f)),
+            frac: f,
+        }
+    }
+
+    /// Raw value at `f` fraction bits (`f ≥ self.frac`).
+    #[inline]
+    fn align(self, f: i32) -> i64 {
+        self.raw
+            .wrapping_shl(f.wrapping_sub(self.frac).unsigned_abs())
+    }
+
+    /// Exact comparison of values.
+    #[inline]
+    pub fn cmp_value(self, o: Self) -> std::cmp::Ordering {
+        let f = self.frac.max(o.frac);
+        self.align(f).cmp(&o.align(f))
+    }
+}
+
+/// Whether values of these shapes (integer bits incl. sign, fraction bits) fit the narrow
+/// `i64` path ([`Exact64`]): at most 62 bits each.
+pub fn fits64(shapes: &[(i32, i32)]) -> bool {
+    shapes.iter().all(|&(i, f)| i.saturating_add(f) <= 62)
+}
+
+/// Shape (integer bits incl. sign, fraction bits) of the constant `x`.
+pub fn constant_shape(x: Exact) -> (i32, i32) {
+    let bits = 128i32.wrapping_sub(x.raw.unsigned_abs().leading_zeros() as i32);
+    (bits.wrapping_add(1).wrapping_sub(x.frac), x.frac)
 }
 
 /// Check that an exact intermediate of the given shape (integer bits incl. sign, fraction

@@ -8,7 +8,9 @@
 //! Step size: error-controlled with an embedded order-3 estimate; the integrator steps
 //! exactly to the end of each segment (the input is held constant inside a segment).
 //! State events (a sign change of [`OdeSystem::event`]) end a segment early; they are
-//! located by the Illinois method on the step size.
+//! located on the step size by the Illinois method, started at the root of the step's cubic
+//! Hermite interpolant of the event function (where [`OdeSystem::event_rate`] is given) and
+//! closed from both sides by Newton trials just past the root.
 
 mod arrow;
 mod lu;
@@ -49,6 +51,11 @@ pub trait OdeSystem<const N: usize> {
     /// Event function. `None` when the system has no event. An event happens where the value
     /// goes from `≥ 0` at the start of a step to `< 0` at its end.
     fn event(&self, _y: &SVector<f64, N>) -> Option<f64> {
+        None
+    }
+    /// Rate of the event function along the solution, `∇g(y)·f(y)`, given `f = f(y)`
+    /// (`None`: not known; event location then uses values alone).
+    fn event_rate(&self, _y: &SVector<f64, N>, _f: &SVector<f64, N>) -> Option<f64> {
         None
     }
 }

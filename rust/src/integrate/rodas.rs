@@ -382,7 +382,7 @@ where
             // Event check on the accepted step.
             if let (Some(g0), Some(g1)) = (sys.event(y), sys.event(&out.y1)) {
                 if g0 >= 0.0 && g1 < 0.0 {
-                    let (s, y_ev) = self.locate(sys, y, &f0, &jac, h_try, g0, g1, atol)?;
+                    let (s, y_ev) = self.locate(sys, y, &f0, &jac, &out.y1, h_try, g0, g1, atol)?;
                     *y = y_ev;
                     self.stats.n_events += 1;
                     self.h = h_try.max(opts.h_min_s);
@@ -425,8 +425,20 @@ where
         Ok(SegmentEnd::Reached)
     }
 
-    /// Locate the event inside an accepted step `[0, h]` (g(0) = g0 ≥ 0 > g1 = g(h)) by the
-    /// Illinois method on the step size; returns the offset and the state there.
+    /// Locate the event inside an accepted step `[0, h]` (g(0) = g0 ≥ 0 > g1 = g(h), `y1` the
+    /// step's end state); returns the offset and the state there (the first trial state with
+    /// g < 0 once the bracket is at most `event_tol_s` wide).
+    ///
+    /// Each trial is a step of its own size from `y0`. The trials: the Illinois method on the
+    /// bracket, with two shortcuts: where the system gives the event's rate
+    /// ([`OdeSystem::event_rate`]), the first trial is the root of the cubic Hermite
+    /// interpolant of g over the step (g and its rate at both ends); and after a trial whose
+    /// Newton estimate of the root (slope: the secant through the last two trials, or the
+    /// cubic's at the first) lies inside the bracket, the next trial goes just past that
+    /// estimate (by 0.1 % of the distance and a quarter of the tolerance), so that the root is
+    /// bracketed tightly from both sides instead of approached from one while the other end
+    /// stays far. A shortcut that does not land on the other side is followed by an Illinois
+    /// trial; every trial lies strictly inside the bracket, so the bracket always shrinks.
     #[allow(clippy::too_many_arguments)]
     fn locate<S: OdeSystem<N>>(
         &mut self,
@@ -434,23 +446,37 @@ where
         y0: &SVector<f64, N>,
         f0: &SVector<f64, N>,
         jac: &SMatrix<f64, N, N>,
+        y1: &SVector<f64, N>,
         h: f64,
         g0: f64,
         g1: f64,
         atol: &SVector<f64, N>,
     ) -> Result<(f64, SVector<f64, N>), SimError> {
+        let tol = self.options.event_tol_s;
         let (mut a, mut ga) = (0.0_f64, g0);
         let (mut b, mut gb) = (h, g1);
         let mut yb: Option<SVector<f64, N>> = None;
         let mut side = 0i8;
+        // The cubic Hermite interpolant of g over the step, when the rates are known.
+        let cubic = sys.event_rate(y0, f0).and_then(|m0| {
+            let mut f1 = SVector::<f64, N>::zeros();
+            sys.rhs(y1, &mut f1);
+            self.stats.n_rhs += 1;
+            sys.event_rate(y1, &f1)
+                .map(|m1| Hermite::new(h, g0, g1, m0, m1))
+        });
+        let mut next: Option<f64> = cubic.as_ref().and_then(Hermite::root);
+        // The last trial (offset, g) and whether it was a shortcut.
+        let mut last: Option<(f64, f64)> = None;
+        let mut shortcut = next.is_some();
         for _ in 0..200 {
-            if b - a <= self.options.event_tol_s {
+            if b - a <= tol {
                 break;
             }
-            let mut s = if ga == gb {
-                0.5 * (a + b)
-            } else {
-                (a * gb - b * ga) / (gb - ga)
+            let mut s = match next.take() {
+                Some(s) => s,
+                None if ga == gb => 0.5 * (a + b),
+                None => (a * gb - b * ga) / (gb - ga),
             };
             if !(s > a && s < b) {
                 s = 0.5 * (a + b);
@@ -481,6 +507,24 @@ where
                     return Ok((s, out.y1));
                 }
             }
+            // A shortcut that stayed on the side of the last trial: Illinois next.
+            let crossed = last.is_none_or(|(_, gp)| (gp < 0.0) != (gs < 0.0));
+            if shortcut && !crossed {
+                shortcut = false;
+            } else {
+                let slope = match last {
+                    Some((sp, gp)) if gs != gp => Some((gs - gp) / (s - sp)),
+                    Some(_) => None,
+                    None => cubic.as_ref().map(|c| c.rate(s)),
+                };
+                next = slope.and_then(|m| {
+                    let dist = -gs / m;
+                    let past = s + dist + (1e-3 * dist.abs() + 0.25 * tol).copysign(dist);
+                    (dist.is_finite() && past > a && past < b).then_some(past)
+                });
+                shortcut = next.is_some();
+            }
+            last = Some((s, gs));
         }
         let y_ev = match yb {
             Some(y) => y,
@@ -495,5 +539,68 @@ where
             },
         };
         Ok((b, y_ev))
+    }
+}
+
+/// The cubic Hermite interpolant of g on `[0, h]` from its values and rates at both ends.
+struct Hermite {
+    h: f64,
+    g0: f64,
+    g1: f64,
+    m0: f64,
+    m1: f64,
+}
+
+impl Hermite {
+    fn new(h: f64, g0: f64, g1: f64, m0: f64, m1: f64) -> Self {
+        Self { h, g0, g1, m0, m1 }
+    }
+
+    /// Value at `s`.
+    fn value(&self, s: f64) -> f64 {
+        let t = s / self.h;
+        let (t2, t3) = (t * t, t * t * t);
+        (2.0 * t3 - 3.0 * t2 + 1.0) * self.g0
+            + (t3 - 2.0 * t2 + t) * self.h * self.m0
+            + (-2.0 * t3 + 3.0 * t2) * self.g1
+            + (t3 - t2) * self.h * self.m1
+    }
+
+    /// Rate at `s`.
+    fn rate(&self, s: f64) -> f64 {
+        let t = s / self.h;
+        let t2 = t * t;
+        ((6.0 * t2 - 6.0 * t) * (self.g0 - self.g1)) / self.h
+            + (3.0 * t2 - 4.0 * t + 1.0) * self.m0
+            + (3.0 * t2 - 2.0 * t) * self.m1
+    }
+
+    /// A root in (0, h) (g0 ≥ 0 > g1: the interpolant changes sign there): safeguarded
+    /// Newton from the secant root, bisection when a Newton step leaves the bracket. `None`
+    /// if the values are not finite.
+    fn root(&self) -> Option<f64> {
+        let (mut lo, mut hi) = (0.0, self.h);
+        if !(self.g0 >= 0.0 && self.g1 < 0.0 && self.m0.is_finite() && self.m1.is_finite()) {
+            return None;
+        }
+        let mut s = self.h * self.g0 / (self.g0 - self.g1);
+        for _ in 0..30 {
+            let v = self.value(s);
+            if v >= 0.0 {
+                lo = s;
+            } else {
+                hi = s;
+            }
+            let m = self.rate(s);
+            let mut n = s - v / m;
+            if !(n > lo && n < hi) {
+                n = 0.5 * (lo + hi);
+            }
+            if (n - s).abs() <= 1e-6 * self.h * f64::EPSILON.sqrt() {
+                return Some(n);
+            }
+            s = n;
+        }
+        (s > 0.0 && s < self.h).then_some(s)
     }
 }

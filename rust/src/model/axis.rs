@@ -38,6 +38,12 @@ pub struct Axis {
     /// Stribeck exponent above which the motor friction's exponential does not change the
     /// torque (`StribeckFriction::negligible_exponent`).
     pub stribeck_negligible_exponent: f64,
+    /// `T_s − T_c` of the motor friction.
+    stribeck_span_nm: f64,
+    /// The seed axis's laws: Stribeck exponent 2 with `T_s ≠ T_c`, Dahl exponent 1, current
+    /// as a state. The slip right-hand side then skips the checks for the other cases
+    /// (`Segment::seed_slip_rhs`: the same operations, bit for bit).
+    seed_laws: bool,
 }
 
 impl Axis {
@@ -55,6 +61,14 @@ impl Axis {
                 + eta * params.motor.rotor_inertia_kg_m2 / (r * r)
                 + params.screw.efficiency * params.screw.inertia_kg_m2 * k * k,
             stribeck_negligible_exponent: params.motor_friction.negligible_exponent(),
+            stribeck_span_nm: params.motor_friction.static_torque_nm
+                - params.motor_friction.coulomb_torque_nm,
+            seed_laws: params.motor_friction.static_torque_nm
+                - params.motor_friction.coulomb_torque_nm
+                != 0.0
+                && params.motor_friction.stribeck_exponent == 2.0
+                && params.dahl.exponent == 1.0
+                && !params.motor.quasi_static_current,
         })
     }
 
@@ -141,6 +155,88 @@ impl Segment<'_> {
         };
     }
 
+    /// The slip right-hand side of an axis with `seed_laws`: [`StribeckFriction::torque_value`]
+    /// with δ = 2 and `T_s ≠ T_c`, [`DahlFriction::rate`] with exponent 1 and
+    /// [`Self::slip_rhs`] with the current as a state, written out without the checks for the
+    /// other cases: the same operations in the same order, so the same values bit for bit.
+    ///
+    /// [`StribeckFriction::torque_value`]: super::params::StribeckFriction::torque_value
+    /// [`DahlFriction::rate`]: super::params::DahlFriction::rate
+    #[inline(always)]
+    fn seed_slip_rhs(&self, y: &State, d: f64, dy: &mut State) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let f = &p.motor_friction;
+        let r = a.transmission_m_per_rad;
+        let w = y[V] / r;
+        let q = (w.abs() / f.stribeck_velocity_rad_per_s).max(1e-12);
+        let q2 = q * q;
+        let e = if q2 > 746.0 || q2 > a.stribeck_negligible_exponent {
+            0.0
+        } else {
+            (-q * q).exp()
+        };
+        let tf = d * (f.coulomb_torque_nm + a.stribeck_span_nm * e) + f.viscous_nm_s_per_rad * w;
+        let dz = p.dahl.stiffness_n_per_m * y[V] * (1.0 - y[Z] * d / p.dahl.coulomb_force_n);
+        let f_drive = a.efficiency * (m.torque_constant_nm_per_a * y[I] - tf) / r;
+        dy[X] = y[V];
+        dy[V] = (f_drive - y[Z] - p.table.external_force_n) / a.equivalent_mass_kg;
+        dy[Z] = dz;
+        dy[I] = (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w) / m.inductance_h;
+    }
+
+    /// [`OdeSystem::rhs_and_jacobian`] in slip for an axis with `seed_laws`:
+    /// [`StribeckFriction::torque`] with δ = 2 and `T_s ≠ T_c`, [`DahlFriction::rate`] with
+    /// exponent 1, then [`Self::slip_rhs`] and [`Self::slip_jacobian`] with the current as a
+    /// state, written out without the checks for the other cases (the same operations in the
+    /// same order).
+    ///
+    /// [`StribeckFriction::torque`]: super::params::StribeckFriction::torque
+    /// [`DahlFriction::rate`]: super::params::DahlFriction::rate
+    #[inline(always)]
+    fn seed_slip_rhs_and_jacobian(&self, y: &State, d: f64, dy: &mut State, jac: &mut Jac) {
+        let a = self.axis;
+        let p = &a.params;
+        let m = &p.motor;
+        let f = &p.motor_friction;
+        let r = a.transmission_m_per_rad;
+        // StribeckFriction::torque.
+        let w = y[V] / r;
+        let ws = f.stribeck_velocity_rad_per_s;
+        let span = a.stribeck_span_nm;
+        let q = (w.abs() / ws).max(1e-12);
+        let e = if q * q > 746.0 { 0.0 } else { (-q * q).exp() };
+        let de_dw = -e * 2.0 * q * w.signum() / ws;
+        let tf = d * (f.coulomb_torque_nm + span * e) + f.viscous_nm_s_per_rad * w;
+        let dtf_dw = d * span * de_dw + f.viscous_nm_s_per_rad;
+        // DahlFriction::rate.
+        let sigma = p.dahl.stiffness_n_per_m;
+        let fc = p.dahl.coulomb_force_n;
+        let qz = 1.0 - y[Z] * d / fc;
+        let (dz, dz_dv, dz_dz) = (sigma * y[V] * qz, sigma * qz, -sigma * y[V] * d / fc);
+        // slip_rhs.
+        let f_drive = a.efficiency * (m.torque_constant_nm_per_a * y[I] - tf) / r;
+        dy[X] = y[V];
+        dy[V] = (f_drive - y[Z] - p.table.external_force_n) / a.equivalent_mass_kg;
+        dy[Z] = dz;
+        dy[I] = (self.u_v - m.resistance_ohm * y[I] - m.back_emf_v_s_per_rad * w) / m.inductance_h;
+        // slip_jacobian.
+        jac.fill(0.0);
+        let meq = a.equivalent_mass_kg;
+        let kt = m.torque_constant_nm_per_a;
+        let di_dv = 0.0;
+        let df_dv = a.efficiency * (kt * di_dv - dtf_dw / r) / r;
+        jac[(X, V)] = 1.0;
+        jac[(V, V)] = df_dv / meq;
+        jac[(V, Z)] = -1.0 / meq;
+        jac[(Z, V)] = dz_dv;
+        jac[(Z, Z)] = dz_dz;
+        jac[(V, I)] = a.efficiency * kt / (r * meq);
+        jac[(I, V)] = -m.back_emf_v_s_per_rad / (r * m.inductance_h);
+        jac[(I, I)] = -m.resistance_ohm / m.inductance_h;
+    }
+
     /// The slip Jacobian given ∂T_f/∂w and the Dahl rate's partial derivatives.
     #[inline(always)]
     fn slip_jacobian(&self, dtf_dw: f64, dz_dv: f64, dz_dz: f64, jac: &mut Jac) {
@@ -188,6 +284,7 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                     (self.u_v - m.resistance_ohm * y[I]) / m.inductance_h
                 };
             }
+            Mode::Slip(d) if a.seed_laws => self.seed_slip_rhs(y, d, dy),
             Mode::Slip(d) => {
                 let tf = p
                     .motor_friction
@@ -204,6 +301,7 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
                 self.rhs(y, dy);
                 self.jacobian(y, jac);
             }
+            Mode::Slip(d) if self.axis.seed_laws => self.seed_slip_rhs_and_jacobian(y, d, dy, jac),
             Mode::Slip(d) => {
                 // One friction evaluation (an exponential) for both.
                 let p = &self.axis.params;
@@ -241,6 +339,14 @@ impl OdeSystem<STATE_DIM> for Segment<'_> {
     /// Jacobian is diagonal).
     fn arrowhead_hub(&self) -> Option<usize> {
         Some(V)
+    }
+
+    /// Slip: g = v·d, so g' = v'·d. Stuck: not given.
+    fn event_rate(&self, _y: &State, f: &State) -> Option<f64> {
+        match self.mode {
+            Mode::Slip(d) => Some(f[V] * d),
+            Mode::Stuck => None,
+        }
     }
 
     fn event(&self, y: &State) -> Option<f64> {
@@ -447,6 +553,82 @@ impl Plant {
                             t_s: t,
                             state: self.y.iter().copied().collect(),
                         });
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Axis, Jac, Mode, Segment, State, V};
+    use crate::integrate::OdeSystem;
+    use crate::presets::seed_axis;
+
+    /// The seed-law slip right-hand side (alone and with the Jacobian) equals the general one
+    /// bit for bit: states from rest
+    /// to slewing speed (through the Stribeck range and past the exponential's cut-off), Dahl
+    /// forces across ±F_c, both directions, friction levels scaled as in a campaign.
+    #[test]
+    fn seed_slip_rhs_is_the_general_rhs_bit_for_bit() {
+        let mut s = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for scale in [1.0, 0.7, 1.3] {
+            let fast =
+                Axis::new(seed_axis().with_friction_scale(scale)).unwrap_or_else(|e| panic!("{e}"));
+            assert!(fast.seed_laws);
+            let mut general = fast;
+            general.seed_laws = false;
+            let fc = fast.params.dahl.coulomb_force_n;
+            for k in 0..20_000 {
+                let v = 0.02 * next() * 10f64.powf(-4.0 * (next() + 1.0) / 2.0);
+                let y = State::new(1e-3 * next(), v, 1.2 * fc * next(), 2.0 * next());
+                let d = if k % 2 == 0 { 1.0 } else { -1.0 };
+                let u_v = 6.0 * next();
+                let (mut a, mut b) = (State::zeros(), State::zeros());
+                Segment {
+                    axis: &fast,
+                    mode: Mode::Slip(d),
+                    u_v,
+                }
+                .rhs(&y, &mut a);
+                Segment {
+                    axis: &general,
+                    mode: Mode::Slip(d),
+                    u_v,
+                }
+                .rhs(&y, &mut b);
+                for i in 0..4 {
+                    assert_eq!(
+                        a[i].to_bits(),
+                        b[i].to_bits(),
+                        "{y} d {d} u {u_v} (v {})",
+                        y[V]
+                    );
+                }
+                let (mut ja, mut jb) = (Jac::zeros(), Jac::zeros());
+                Segment {
+                    axis: &fast,
+                    mode: Mode::Slip(d),
+                    u_v,
+                }
+                .rhs_and_jacobian(&y, &mut a, &mut ja);
+                Segment {
+                    axis: &general,
+                    mode: Mode::Slip(d),
+                    u_v,
+                }
+                .rhs_and_jacobian(&y, &mut b, &mut jb);
+                for i in 0..4 {
+                    assert_eq!(a[i].to_bits(), b[i].to_bits(), "{y} d {d} u {u_v}");
+                    for j in 0..4 {
+                        assert_eq!(ja[(i, j)].to_bits(), jb[(i, j)].to_bits(), "{y} d {d}");
                     }
                 }
             }

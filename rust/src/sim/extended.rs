@@ -525,11 +525,16 @@ fn run_loop(
             x_read += enc.noise_std_m * g;
         }
         let counts_now = enc.encoder.read(x_read);
-        reading_buf.push_back(counts_now);
-        let counts_seen = if reading_buf.len() > enc.delay_samples {
-            reading_buf.pop_front().unwrap_or(counts_now)
+        // Without a reading delay the buffer would hand back the reading just pushed.
+        let counts_seen = if enc.delay_samples == 0 {
+            counts_now
         } else {
-            *reading_buf.front().unwrap_or(&counts_now)
+            reading_buf.push_back(counts_now);
+            if reading_buf.len() > enc.delay_samples {
+                reading_buf.pop_front().unwrap_or(counts_now)
+            } else {
+                *reading_buf.front().unwrap_or(&counts_now)
+            }
         };
         let r_counts = enc.encoder.reference_counts(r_m);
         // The controller.
@@ -555,11 +560,16 @@ fn run_loop(
             _ => unreachable!("controller state matches its kind"),
         };
         let u_dist = u_ctrl + known.command_v.get(k).copied().unwrap_or(0.0);
-        output_buf.push_back(u_dist);
-        let u_new = if output_buf.len() > cfg.computation_delay_samples {
-            output_buf.pop_front().unwrap_or(u_dist)
+        // Without a computation delay the buffer would hand back the output just pushed.
+        let u_new = if cfg.computation_delay_samples == 0 {
+            u_dist
         } else {
-            0.0
+            output_buf.push_back(u_dist);
+            if output_buf.len() > cfg.computation_delay_samples {
+                output_buf.pop_front().unwrap_or(u_dist)
+            } else {
+                0.0
+            }
         };
         match sink {
             Sink::Trace(tr) => {
