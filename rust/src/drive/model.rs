@@ -69,8 +69,20 @@ pub struct Drive {
     pub transmission_m_per_rad: f64,
     /// Forward efficiency η (1 for a force drive).
     pub efficiency: f64,
-    /// Typical magnitude of each state (finite-difference increments, tolerances).
+    /// Typical magnitude of each state (finite-difference increments).
     pub scales: Vec<f64>,
+    /// Absolute tolerance of each state per metre of position tolerance (see
+    /// [`Drive::new`]).
+    pub tol_scales: Vec<f64>,
+    /// The Jacobian is an arrowhead with the (only) velocity as hub: one mass, no amplifier
+    /// state, and no table modulation acting on a dynamic friction state.
+    arrowhead: bool,
+    /// `StaticMap::negligible_exponent` of the motor and the table static maps.
+    negligible: [f64; 2],
+    /// A stuck phase has a closed-form solution: one mass and no amplifier state (the
+    /// current relaxes exponentially, dwell clocks run, lagged velocities decay, nothing else
+    /// moves).
+    closed_form_stuck: bool,
 }
 
 fn modulation(m: &Modulation, x: f64) -> (f64, f64) {
@@ -100,11 +112,40 @@ impl StaticMap {
     /// scale `s` (modulation × stochastic factor).
     #[inline]
     pub fn sliding_force(&self, v: f64, w: f64, d: f64, s: f64) -> f64 {
+        self.sliding_force_with(v, w, d, s, f64::INFINITY)
+    }
+
+    /// Stribeck exponent above which the exponential term cannot change the sliding force
+    /// (`e·(Fs − Fc)` below half an ulp of `Fc`; as `StribeckFriction::negligible_exponent`).
+    /// `+∞` (never skip) when `Fc = 0`.
+    pub fn negligible_exponent(&self) -> f64 {
+        let span = self.static_force_n - self.coulomb_force_n;
+        if self.coulomb_force_n > 0.0 && span > 0.0 {
+            (span / self.coulomb_force_n).ln() + 55.0 * std::f64::consts::LN_2 + 1.0
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// [`Self::sliding_force`] without the exponential where its exponent exceeds
+    /// `negligible` (from [`Self::negligible_exponent`]) or 746 (where it underflows to 0):
+    /// the same force, bit for bit. The exponent `|w/vs|^δ` is a product for δ = 2.
+    #[inline]
+    pub fn sliding_force_with(&self, v: f64, w: f64, d: f64, s: f64, negligible: f64) -> f64 {
         let q = (w.abs() / self.stribeck_velocity_m_per_s).max(1e-300);
         let e = if self.static_force_n == self.coulomb_force_n {
             0.0
         } else {
-            (-q.powf(self.stribeck_exponent)).exp()
+            let qd = if self.stribeck_exponent == 2.0 {
+                q * q
+            } else {
+                q.powf(self.stribeck_exponent)
+            };
+            if qd > 746.0 || qd > negligible {
+                0.0
+            } else {
+                (-qd).exp()
+            }
         };
         self.dir(d)
             * s
@@ -301,6 +342,14 @@ impl Drive {
             _ => 0,
         };
         let n_state = i_fric + n_fric;
+        let tol_scales = Self::tolerance_scales(
+            &params,
+            &masses,
+            r,
+            eta,
+            &scales,
+            (i_current, [i_lag_motor, i_lag_table], i_fric),
+        );
         Ok(Self {
             params,
             n_mass,
@@ -316,7 +365,71 @@ impl Drive {
             transmission_m_per_rad: r,
             efficiency: eta,
             scales,
+            tol_scales,
+            arrowhead: n_mass == 1
+                && i_amp.is_none()
+                && (n_fric == 0 || params.table_modulation.n_terms == 0),
+            closed_form_stuck: n_mass == 1 && i_amp.is_none(),
+            negligible: [
+                params
+                    .motor_friction
+                    .map_or(f64::INFINITY, |m| m.negligible_exponent()),
+                table_map.map_or(f64::INFINITY, |m| m.negligible_exponent()),
+            ],
         })
+    }
+
+    /// Absolute tolerance per metre of position tolerance for each state, on the rigid
+    /// plant's principle (`Axis::state_scales`, docs/model.md "Tolerances"): position 1;
+    /// velocity 1e3/s (one position tolerance per ms); lag states (lagged velocities) the
+    /// same; a Dahl force σ (the force of one position tolerance of presliding); LuGre and
+    /// GMS deflections 1 (they are lengths); the current the larger of the current that
+    /// produces that Dahl force and `m / (τ_e²·η·k_t/r)`, the current error whose transient
+    /// (τ_e = L/R) moves the masses by one position tolerance; other states (amplifier
+    /// voltage, dwell clocks) 1 per unit. With the seed axis's components the scales equal
+    /// the rigid plant's.
+    fn tolerance_scales(
+        params: &DriveParams,
+        masses: &[f64],
+        r: f64,
+        eta: f64,
+        scales: &[f64],
+        layout: (Option<usize>, [Option<usize>; 2], usize),
+    ) -> Vec<f64> {
+        let (i_current, i_lags, i_fric) = layout;
+        // Amplifier voltage and dwell clocks: one unit per millimetre, as before.
+        let mut t: Vec<f64> = scales.iter().map(|s| s / 1e-3).collect();
+        for j in 0..masses.len() {
+            t[2 * j] = 1.0;
+            t[2 * j + 1] = 1e3;
+        }
+        for k in i_lags.into_iter().flatten() {
+            t[k] = 1e3;
+        }
+        let presliding = match &params.table_friction {
+            TableFriction::Dahl(d) => {
+                t[i_fric] = d.stiffness_n_per_m;
+                d.stiffness_n_per_m
+            }
+            TableFriction::LuGre(l) => {
+                t[i_fric] = 1.0;
+                l.stiffness_n_per_m
+            }
+            TableFriction::Gms(g) => {
+                for v in t.iter_mut().skip(i_fric).take(g.n_elements) {
+                    *v = 1.0;
+                }
+                g.stiffness_n_per_m[..g.n_elements].iter().sum()
+            }
+            TableFriction::None | TableFriction::Static(_) => 0.0,
+        };
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (i_current, &params.actuator) {
+            let force_per_amp = eta * motor.torque_constant_nm_per_a / r;
+            let tau_e = motor.inductance_h / motor.resistance_ohm;
+            let transient = masses[0] / (tau_e * tau_e * force_per_amp);
+            t[k] = (presliding / force_per_amp).max(transient);
+        }
+        t
     }
 
     /// Index of the table mass.
@@ -467,7 +580,7 @@ impl Drive {
             let w = self.i_lag_motor.map_or(v0, |k| y[k]);
             let dwell = self.i_clock[0].map_or(0.0, |k| y[k]);
             if d0 != 0.0 {
-                out[0][1] += m.sliding_force(v0, w, d0, s0);
+                out[0][1] += m.sliding_force_with(v0, w, d0, s0, self.negligible[0]);
             }
             out[0][2] += m.capacity(1.0, s0, dwell);
             out[0][3] += m.capacity(-1.0, s0, dwell);
@@ -476,7 +589,7 @@ impl Drive {
             let w = self.i_lag_table.map_or(vt, |k| y[k]);
             let dwell = self.i_clock[t].map_or(0.0, |k| y[k]);
             if dt != 0.0 {
-                out[t][1] += m.sliding_force(vt, w, dt, st);
+                out[t][1] += m.sliding_force_with(vt, w, dt, st, self.negligible[1]);
             }
             out[t][2] += m.capacity(1.0, st, dwell);
             out[t][3] += m.capacity(-1.0, st, dwell);
@@ -614,6 +727,34 @@ struct Segment<'a> {
     modes: [MassMode; MAX_MASSES],
 }
 
+impl Segment<'_> {
+    /// Forward-difference Jacobian at `y` given `f0 = f(y)`.
+    fn difference_jacobian<const N: usize>(
+        &self,
+        y: &SVector<f64, N>,
+        f0: &SVector<f64, N>,
+        jac: &mut SMatrix<f64, N, N>,
+    ) {
+        let n = self.drive.n_state;
+        jac.fill(0.0);
+        let mut f1 = [0.0; 32];
+        let mut yp = [0.0; 32];
+        yp[..n].copy_from_slice(&y.as_slice()[..n]);
+        for c in 0..n {
+            let h = 1e-7 * yp[c].abs().max(self.drive.scales[c]);
+            let keep = yp[c];
+            yp[c] = keep + h;
+            let h = yp[c] - keep;
+            self.drive
+                .rhs(&yp[..n], &mut f1[..n], &self.inp, &self.modes);
+            yp[c] = keep;
+            for r in 0..n {
+                jac[(r, c)] = (f1[r] - f0[r]) / h;
+            }
+        }
+    }
+}
+
 impl<const N: usize> OdeSystem<N> for Segment<'_> {
     fn rhs(&self, y: &SVector<f64, N>, dy: &mut SVector<f64, N>) {
         let n = self.drive.n_state;
@@ -626,25 +767,27 @@ impl<const N: usize> OdeSystem<N> for Segment<'_> {
     }
 
     fn jacobian(&self, y: &SVector<f64, N>, jac: &mut SMatrix<f64, N, N>) {
-        let n = self.drive.n_state;
-        jac.fill(0.0);
-        let mut f0 = [0.0; 32];
-        let mut f1 = [0.0; 32];
-        let mut yp = [0.0; 32];
-        yp[..n].copy_from_slice(&y.as_slice()[..n]);
-        self.drive
-            .rhs(&yp[..n], &mut f0[..n], &self.inp, &self.modes);
-        for c in 0..n {
-            let h = 1e-7 * yp[c].abs().max(self.drive.scales[c]);
-            let keep = yp[c];
-            yp[c] = keep + h;
-            let h = yp[c] - keep;
-            self.drive
-                .rhs(&yp[..n], &mut f1[..n], &self.inp, &self.modes);
-            yp[c] = keep;
-            for r in 0..n {
-                jac[(r, c)] = (f1[r] - f0[r]) / h;
-            }
+        let mut f0 = SVector::<f64, N>::zeros();
+        self.rhs(y, &mut f0);
+        self.difference_jacobian(y, &f0, jac);
+    }
+
+    /// The right-hand side at `y` is also the base point of the forward differences.
+    fn rhs_and_jacobian(
+        &self,
+        y: &SVector<f64, N>,
+        dy: &mut SVector<f64, N>,
+        jac: &mut SMatrix<f64, N, N>,
+    ) {
+        self.rhs(y, dy);
+        self.difference_jacobian(y, dy, jac);
+    }
+
+    fn arrowhead_hub(&self) -> Option<usize> {
+        if self.drive.arrowhead {
+            Some(1)
+        } else {
+            None
         }
     }
 
@@ -677,7 +820,14 @@ pub struct DrivePlant<const N: usize> {
     /// The integrator.
     pub integrator: Rodas4<N>,
     atol: SVector<f64, N>,
+    /// Command voltage of the last `advance` call (NaN before the first).
+    u_last: f64,
+    /// Error norm per (volt of input jump · s³ of first step) seen after the last jump.
+    jump_error_rate: Option<f64>,
 }
+
+/// Error norm the first trial step after an input jump aims at (as `model::Plant`).
+const JUMP_FIRST_STEP_ERROR: f64 = 0.8;
 
 impl<const N: usize> DrivePlant<N>
 where
@@ -688,8 +838,8 @@ where
         let mut atol = SVector::<f64, N>::repeat(1.0);
         // Tolerances relative to the position tolerance, scaled per state like the rigid
         // plant: a velocity of 1e3/s, a force state σ·x, etc. (state scale / 1 mm).
-        for (k, s) in drive.scales.iter().enumerate() {
-            atol[k] = options.atol_position_m * s / 1e-3;
+        for (k, s) in drive.tol_scales.iter().enumerate() {
+            atol[k] = options.atol_position_m * s;
         }
         let modes = drive.initial_modes();
         Ok(Self {
@@ -698,7 +848,123 @@ where
             modes,
             integrator,
             atol,
+            u_last: f64::NAN,
+            jump_error_rate: None,
         })
+    }
+
+    /// The state a time `dt` into a stuck phase of the one-mass chain (see
+    /// [`Drive::closed_form_stuck`]) that starts at `y0` with the inputs `inp`.
+    fn stuck_state(&self, y0: &SVector<f64, N>, inp: &Inputs, dt: f64) -> SVector<f64, N> {
+        let d = &self.drive;
+        let mut y = *y0;
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (d.i_current, &d.params.actuator) {
+            // di/dt = (u − R·i)/L with the velocity zero.
+            let i_inf = inp.u_v / motor.resistance_ohm;
+            let rate = motor.resistance_ohm / motor.inductance_h;
+            y[k] = i_inf + (y0[k] - i_inf) * (-rate * dt).exp();
+        }
+        if let Some(k) = d.i_clock[0] {
+            y[k] = y0[k] + dt;
+        }
+        if let (Some(k), Some(m)) = (d.i_lag_motor, &d.params.motor_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            y[k] = y0[k] * (-dt / tau).exp();
+        }
+        if let (Some(k), TableFriction::Static(m)) = (d.i_lag_table, &d.params.table_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            y[k] = y0[k] * (-dt / tau).exp();
+        }
+        y
+    }
+
+    /// Holding force of the stuck mass 0 and its capacities (+, −) at `y`.
+    fn stuck_forces(&self, y: &SVector<f64, N>, inp: &Inputs) -> (f64, f64, f64) {
+        let n = self.drive.n_state;
+        let mut m = self.modes;
+        m[0] = MassMode::Stuck;
+        let f = self.drive.forces(&y.as_slice()[..n], inp, &m, None)[0];
+        (f[0], f[2], f[3])
+    }
+
+    /// A stuck phase of the one-mass chain from `t0` to at most `t1`, solved in closed form.
+    /// Returns the time of breakaway (the state is then the first one found past it, within
+    /// the event tolerance, as the integrator's event location leaves it) or `None` when the
+    /// mass stays stuck to `t1` (the state is then the state at `t1`).
+    ///
+    /// The holding force is affine in the current, which is monotone in time, so its
+    /// magnitude peaks at an end of any interval; the capacity is constant or (dwell) rises
+    /// with time. So `min(cap±(a)) − max(|f(a)|, |f(b)|)` bounds the event value from below
+    /// on `[a, b]`: intervals whose bound is ≥ 0 hold for sure, the others are halved (left
+    /// first) until a negative event value is found or they are narrower than the event
+    /// tolerance.
+    fn stuck_closed_form(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Option<f64> {
+        let y0 = self.y;
+        let tol = self.integrator.options.event_tol_s;
+        let eval = |s: &Self, dt: f64| {
+            let y = s.stuck_state(&y0, inp, dt);
+            let (f, cp, cm) = s.stuck_forces(&y, inp);
+            let cap = if f >= 0.0 { cp } else { cm };
+            (y, f, cp.min(cm), cap - f.abs())
+        };
+        let dt_end = t1 - t0;
+        let (_, f_a0, capmin_a0, g0) = eval(self, 0.0);
+        let (y_end, f_end, _, g_end) = eval(self, dt_end);
+        // Find the first interval [a, b] with g(b) < 0 (or none).
+        let mut bracket: Option<(f64, f64)> = None;
+        if g0 < 0.0 {
+            // Held although the force exceeds the capacity (the Zeno guard of `advance`):
+            // as in the integrator, an event needs the value to go from ≥ 0 to < 0.
+        } else if self.drive.i_clock[0].is_none() {
+            // Constant capacity: |f| peaks at an end, so g(end) ≥ 0 means no breakaway.
+            if g_end < 0.0 {
+                bracket = Some((0.0, dt_end));
+            }
+        } else {
+            // (a, b, f(a), min cap(a), f(b)), left intervals on top.
+            let mut stack: Vec<(f64, f64, f64, f64, f64)> =
+                vec![(0.0, dt_end, f_a0, capmin_a0, f_end)];
+            let mut evals = 0usize;
+            while let Some((a, b, fa, capa, fb)) = stack.pop() {
+                if capa - fa.abs().max(fb.abs()) >= 0.0 {
+                    continue;
+                }
+                let (_, _, _, gb) = eval(self, b);
+                if gb < 0.0 {
+                    bracket = Some((a, b));
+                    break;
+                }
+                evals += 1;
+                if b - a <= tol || evals > 400 {
+                    continue;
+                }
+                let m = 0.5 * (a + b);
+                let (_, fm, capm, _) = eval(self, m);
+                stack.push((m, b, fm, capm, fb));
+                stack.push((a, m, fa, capa, fm));
+            }
+        }
+        let Some((mut a, mut b)) = bracket else {
+            self.y = y_end;
+            return None;
+        };
+        // Bisection on the event value: g(a) ≥ 0 > g(b).
+        let mut yb = eval(self, b).0;
+        for _ in 0..200 {
+            if b - a <= tol {
+                break;
+            }
+            let m = 0.5 * (a + b);
+            let (ym, _, _, gm) = eval(self, m);
+            if gm < 0.0 {
+                b = m;
+                yb = ym;
+            } else {
+                a = m;
+            }
+        }
+        self.y = yb;
+        Some(t0 + b)
     }
 
     fn resolve(&mut self, inp: &Inputs, force_stuck: bool) {
@@ -754,7 +1020,15 @@ where
     }
 
     /// Advance from `t0` to `t1` with the inputs held, handling stick/slip events.
+    ///
+    /// A stuck phase of a one-mass chain without amplifier state is solved in closed form
+    /// ([`Self::stuck_closed_form`]), as the rigid plant does. After a jump of the command
+    /// voltage the first trial step is sized from the error seen after the last jump (as
+    /// `model::Plant::advance`); error control itself is unchanged.
     pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+        let jump = (inp.u_v - self.u_last).abs();
+        self.u_last = inp.u_v;
+        let mut at_jump = jump > 0.0;
         let mut t = t0;
         let mut events_here = 0usize;
         let mut t_last_event = f64::NEG_INFINITY;
@@ -762,15 +1036,47 @@ where
             if events_here < MAX_EVENTS_AT_ONE_INSTANT {
                 self.try_breakaway(inp);
             }
+            if self.drive.closed_form_stuck && self.modes[0] == MassMode::Stuck {
+                match self.stuck_closed_form(inp, t, t1) {
+                    None => return Ok(()),
+                    Some(t_s) => {
+                        t = t_s;
+                        let (f, _) = self.drive.holding(
+                            &self.y.as_slice()[..self.drive.n_state],
+                            inp,
+                            &self.modes,
+                            0,
+                        );
+                        self.modes[0] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
+                        continue;
+                    }
+                }
+            }
             let seg = Segment {
                 drive: &self.drive,
                 inp: *inp,
                 modes: self.modes,
             };
-            match self
+            let learn = at_jump && t == t0;
+            if learn {
+                if let Some(rate) = self.jump_error_rate {
+                    self.integrator
+                        .limit_next_step((JUMP_FIRST_STEP_ERROR / (rate * jump)).cbrt());
+                }
+            }
+            at_jump = false;
+            let end = self
                 .integrator
-                .integrate(&seg, t, t1, &mut self.y, &self.atol)?
-            {
+                .integrate(&seg, t, t1, &mut self.y, &self.atol)?;
+            if learn {
+                if let Some((h, err)) = self.integrator.first_accepted() {
+                    let rate = err / (jump * h * h * h);
+                    if rate.is_finite() && rate > 0.0 {
+                        self.jump_error_rate = Some(rate);
+                    }
+                }
+            }
+            match end {
                 SegmentEnd::Reached => return Ok(()),
                 SegmentEnd::Event { t_s } => {
                     if t_s - t_last_event <= self.integrator.options.event_tol_s {
