@@ -640,6 +640,267 @@ impl Drive {
         }
     }
 
+    /// Partial derivatives of the sliding force of a static map (as
+    /// [`StaticMap::sliding_force`]) at velocity `v`, lagged velocity `w`, direction `d` and
+    /// level `s`: (∂/∂v, ∂/∂w, ∂/∂s).
+    fn sliding_partials(m: &StaticMap, w: f64, d: f64, s: f64) -> (f64, f64, f64) {
+        let dv = (1.0 + m.viscous_asymmetry * d) * m.viscous_n_s_per_m;
+        let span = m.static_force_n - m.coulomb_force_n;
+        let q = (w.abs() / m.stribeck_velocity_m_per_s).max(1e-300);
+        let (e, de_dw) = if span == 0.0 {
+            (0.0, 0.0)
+        } else {
+            let delta = m.stribeck_exponent;
+            let qd = q.powf(delta);
+            let e = (-qd).exp();
+            let dq_dw = if w.abs() / m.stribeck_velocity_m_per_s > 1e-300 {
+                w.signum() / m.stribeck_velocity_m_per_s
+            } else {
+                0.0
+            };
+            (e, -e * delta * qd / q * dq_dw)
+        };
+        let dir = m.dir(d);
+        (
+            dv,
+            dir * s * span * de_dw * d,
+            dir * (m.coulomb_force_n + span * e) * d,
+        )
+    }
+
+    /// The Jacobian of [`Self::rhs`] (same modes and inputs), analytic: `set(r, c, v)` adds
+    /// `v` to entry (r, c). Entries that are structurally zero are never touched (the
+    /// arrowhead declaration relies on it). Kinks (dead band edges, the contact ramp's ends,
+    /// the amplifier's slew limit, the GMS yield thresholds) take the derivative of the side
+    /// the state is on.
+    pub fn jacobian(
+        &self,
+        y: &[f64],
+        inp: &Inputs,
+        modes: &[MassMode; MAX_MASSES],
+        set: &mut impl FnMut(usize, usize, f64),
+    ) {
+        let p = &self.params;
+        let n = self.n_state;
+        // Gradient of the net force (drive, links, table, minus sliding) on each mass.
+        let mut grad = [[0.0; 32]; MAX_MASSES];
+        match &p.actuator {
+            Actuator::DcMotor { motor, .. } => {
+                let fpa =
+                    self.efficiency * motor.torque_constant_nm_per_a / self.transmission_m_per_rad;
+                match self.i_current {
+                    Some(k) => grad[0][k] += fpa,
+                    None => {
+                        grad[0][1] -= fpa * motor.back_emf_v_s_per_rad
+                            / (self.transmission_m_per_rad * motor.resistance_ohm);
+                        if let Some(a) = self.i_amp {
+                            grad[0][a] += fpa / motor.resistance_ohm;
+                        }
+                    }
+                }
+            }
+            Actuator::ForceDrive { gain_n_per_v, .. } => {
+                if let Some(a) = self.i_amp {
+                    grad[0][a] += gain_n_per_v;
+                }
+            }
+        }
+        for k in 0..p.n_links {
+            let l = &p.links[k];
+            let delta = y[2 * k] - y[2 * k + 2];
+            let ddelta = y[2 * k + 1] - y[2 * k + 3];
+            let half = 0.5 * l.backlash_m;
+            let (pen, dpen) = if delta > half {
+                (delta - half, 1.0)
+            } else if delta < -half {
+                (delta + half, 1.0)
+            } else {
+                (0.0, 0.0)
+            };
+            let (contact, dcontact) = if l.backlash_m == 0.0 {
+                (1.0, 0.0)
+            } else if pen.abs() / 1e-9 < 1.0 {
+                (pen.abs() / 1e-9, pen.signum() / 1e-9 * dpen)
+            } else {
+                (1.0, 0.0)
+            };
+            let df_dd = l.stiffness_n_per_m * dpen + l.damping_n_s_per_m * ddelta * dcontact;
+            let df_dv = l.damping_n_s_per_m * contact;
+            for (mass, sign) in [(k, -1.0), (k + 1, 1.0)] {
+                grad[mass][2 * k] += sign * df_dd;
+                grad[mass][2 * k + 2] -= sign * df_dd;
+                grad[mass][2 * k + 1] += sign * df_dv;
+                grad[mass][2 * k + 3] -= sign * df_dv;
+            }
+        }
+        let t = self.table();
+        let vt = y[2 * t + 1];
+        let dt = Self::direction(modes[t], vt);
+        let (mod_t, dmod_t) = modulation(&p.table_modulation, y[2 * t]);
+        let st = inp.friction_scale * mod_t;
+        let dst_dx = inp.friction_scale * dmod_t;
+        let table_modulated = p.table_modulation.n_terms > 0;
+        let zi = self.i_fric;
+        // Rows of the dynamic friction states, and the table force's gradient.
+        match &p.table_friction {
+            TableFriction::Dahl(dahl) => {
+                grad[t][zi] -= 1.0;
+                let scaled = DahlFriction {
+                    coulomb_force_n: dahl.coulomb_force_n * st,
+                    ..*dahl
+                };
+                let dd = if dt == 0.0 { 1.0 } else { dt };
+                let (_, dz_dv, dz_dz) = scaled.rate(vt, y[zi], dd);
+                set(zi, 2 * t + 1, dz_dv);
+                set(zi, zi, dz_dz);
+                if table_modulated {
+                    set(zi, 2 * t, -(y[zi] / st) * dz_dz * dst_dx);
+                }
+            }
+            TableFriction::LuGre(l) => {
+                let z = y[zi];
+                let q = vt / l.stribeck_velocity_m_per_s;
+                let ex = (-q * q).exp();
+                let gg = l.coulomb_force_n + (l.static_force_n - l.coulomb_force_n) * ex;
+                let dgg_dv = (l.static_force_n - l.coulomb_force_n)
+                    * ex
+                    * (-2.0 * q / l.stribeck_velocity_m_per_s);
+                let g = st * gg;
+                let s0 = l.stiffness_n_per_m;
+                let dzd_dz = -s0 * vt.abs() / g;
+                let dzd_dv = 1.0 - s0 * z * (vt.signum() * g - vt.abs() * st * dgg_dv) / (g * g);
+                let dzd_ds = s0 * vt.abs() * z * gg / (g * g);
+                set(zi, zi, dzd_dz);
+                set(zi, 2 * t + 1, dzd_dv);
+                grad[t][zi] -= s0 + l.damping_n_s_per_m * dzd_dz;
+                grad[t][2 * t + 1] -= l.damping_n_s_per_m * dzd_dv + l.viscous_n_s_per_m;
+                if table_modulated {
+                    set(zi, 2 * t, dzd_ds * dst_dx);
+                    grad[t][2 * t] -= l.damping_n_s_per_m * dzd_ds * dst_dx;
+                }
+            }
+            TableFriction::Gms(g) => {
+                grad[t][2 * t + 1] -= g.viscous_n_s_per_m;
+                let q = vt / g.stribeck_velocity_m_per_s;
+                let ex = (-q * q).exp();
+                let sv = g.slip_force(vt, st);
+                let dsv_dv = st
+                    * (g.static_force_n - g.coulomb_force_n)
+                    * ex
+                    * (-2.0 * q / g.stribeck_velocity_m_per_s);
+                let beta = GMS_ELASTIC_FRACTION;
+                for i in 0..g.n_elements {
+                    let k = zi + i;
+                    grad[t][k] -= g.stiffness_n_per_m[i];
+                    let z_max = g.weights[i] * sv / g.stiffness_n_per_m[i];
+                    let w = vt.signum() * y[k] / z_max;
+                    let (alpha, dalpha) = if w <= beta {
+                        (0.0, 0.0)
+                    } else if w <= 1.0 {
+                        let u = (w - beta) / (1.0 - beta);
+                        (smoothstep(u), 6.0 * u * (1.0 - u) / (1.0 - beta))
+                    } else {
+                        (w, 1.0)
+                    };
+                    if vt == 0.0 {
+                        // The forward difference in v sees the rate v·(1 − α) from v = 0.
+                        let w0 = y[k] / z_max;
+                        let a0 = if w0 <= beta {
+                            0.0
+                        } else if w0 <= 1.0 {
+                            smoothstep((w0 - beta) / (1.0 - beta))
+                        } else {
+                            w0
+                        };
+                        set(k, 2 * t + 1, 1.0 - a0);
+                        continue;
+                    }
+                    let dzmax_dv = g.weights[i] * dsv_dv / g.stiffness_n_per_m[i];
+                    set(k, k, -vt.abs() * dalpha / z_max);
+                    set(
+                        k,
+                        2 * t + 1,
+                        (1.0 - alpha) + vt * dalpha * (w / z_max) * dzmax_dv,
+                    );
+                    if table_modulated {
+                        set(k, 2 * t, vt * dalpha * w / st * dst_dx);
+                    }
+                }
+            }
+            TableFriction::None | TableFriction::Static(_) => {}
+        }
+        if let Some(m) = &p.motor_friction {
+            let v0 = y[1];
+            let d0 = Self::direction(modes[0], v0);
+            if d0 != 0.0 {
+                let (mod0, dmod0) = modulation(&p.motor_modulation, y[0]);
+                let s0 = inp.friction_scale * mod0;
+                let w = self.i_lag_motor.map_or(v0, |k| y[k]);
+                let (dv, dw, ds) = Self::sliding_partials(m, w, d0, s0);
+                grad[0][1] -= dv;
+                match self.i_lag_motor {
+                    Some(k) => grad[0][k] -= dw,
+                    None => grad[0][1] -= dw,
+                }
+                if p.motor_modulation.n_terms > 0 {
+                    grad[0][0] -= ds * inp.friction_scale * dmod0;
+                }
+            }
+        }
+        if let TableFriction::Static(m) = &p.table_friction {
+            if dt != 0.0 {
+                let w = self.i_lag_table.map_or(vt, |k| y[k]);
+                let (dv, dw, ds) = Self::sliding_partials(m, w, dt, st);
+                grad[t][2 * t + 1] -= dv;
+                match self.i_lag_table {
+                    Some(k) => grad[t][k] -= dw,
+                    None => grad[t][2 * t + 1] -= dw,
+                }
+                if table_modulated {
+                    grad[t][2 * t] -= ds * dst_dx;
+                }
+            }
+        }
+        for j in 0..self.n_mass {
+            if modes[j] == MassMode::Stuck {
+                continue;
+            }
+            set(2 * j, 2 * j + 1, 1.0);
+            for (c, g) in grad[j].iter().enumerate().take(n) {
+                if *g != 0.0 {
+                    set(2 * j + 1, c, g / self.mass_kg[j]);
+                }
+            }
+        }
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (self.i_current, &p.actuator) {
+            set(k, k, -motor.resistance_ohm / motor.inductance_h);
+            set(
+                k,
+                1,
+                -motor.back_emf_v_s_per_rad / (self.transmission_m_per_rad * motor.inductance_h),
+            );
+            if let Some(a) = self.i_amp {
+                set(k, a, 1.0 / motor.inductance_h);
+            }
+        }
+        if let (Some(k), Some(a)) = (self.i_amp, &p.amplifier) {
+            let w = 2.0 * std::f64::consts::PI * a.bandwidth_hz;
+            if (w * (inp.u_v - y[k])).abs() < a.slew_v_per_s {
+                set(k, k, -w);
+            }
+        }
+        if let (Some(k), Some(m)) = (self.i_lag_motor, &p.motor_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            set(k, 1, 1.0 / tau);
+            set(k, k, -1.0 / tau);
+        }
+        if let (Some(k), TableFriction::Static(m)) = (self.i_lag_table, &p.table_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            set(k, 2 * t + 1, 1.0 / tau);
+            set(k, k, -1.0 / tau);
+        }
+    }
+
     /// Net force that the static maps of stuck mass `j` must hold, N, and its capacity in that
     /// direction.
     pub fn holding(
@@ -727,8 +988,9 @@ struct Segment<'a> {
     modes: [MassMode; MAX_MASSES],
 }
 
+#[cfg(test)]
 impl Segment<'_> {
-    /// Forward-difference Jacobian at `y` given `f0 = f(y)`.
+    /// Forward-difference Jacobian at `y` given `f0 = f(y)` (the check of the analytic one).
     fn difference_jacobian<const N: usize>(
         &self,
         y: &SVector<f64, N>,
@@ -767,20 +1029,14 @@ impl<const N: usize> OdeSystem<N> for Segment<'_> {
     }
 
     fn jacobian(&self, y: &SVector<f64, N>, jac: &mut SMatrix<f64, N, N>) {
-        let mut f0 = SVector::<f64, N>::zeros();
-        self.rhs(y, &mut f0);
-        self.difference_jacobian(y, &f0, jac);
-    }
-
-    /// The right-hand side at `y` is also the base point of the forward differences.
-    fn rhs_and_jacobian(
-        &self,
-        y: &SVector<f64, N>,
-        dy: &mut SVector<f64, N>,
-        jac: &mut SMatrix<f64, N, N>,
-    ) {
-        self.rhs(y, dy);
-        self.difference_jacobian(y, dy, jac);
+        let n = self.drive.n_state;
+        jac.fill(0.0);
+        self.drive.jacobian(
+            &y.as_slice()[..n],
+            &self.inp,
+            &self.modes,
+            &mut |r, c, v| jac[(r, c)] += v,
+        );
     }
 
     fn arrowhead_hub(&self) -> Option<usize> {
@@ -1175,5 +1431,185 @@ impl AnyDrivePlant {
     /// Integrator work counters.
     pub fn stats(&self) -> Stats {
         each!(self, p => p.integrator.stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::{Amplifier, DwellStatic, Link};
+    use crate::presets::seed_axis;
+
+    fn configs() -> Vec<DriveParams> {
+        let base = DriveParams::from_axis(&seed_axis());
+        let fc = 30.4;
+        let map = StaticMap {
+            static_force_n: 1.4 * fc,
+            coulomb_force_n: fc,
+            viscous_n_s_per_m: 300.0,
+            stribeck_velocity_m_per_s: 2e-3,
+            stribeck_exponent: 1.5,
+            asymmetry: 0.2,
+            viscous_asymmetry: -0.1,
+            dwell: Some(DwellStatic {
+                rise_n: 5.0,
+                time_constant_s: 0.1,
+            }),
+            memory_lag_s: Some(3e-3),
+        };
+        let mut modulation = Modulation::default();
+        modulation.n_terms = 2;
+        modulation.amplitude[..2].copy_from_slice(&[0.1, 0.05]);
+        modulation.wavenumber_rad_per_m[..2].copy_from_slice(&[6e3, 2e4]);
+        modulation.phase_rad[..2].copy_from_slice(&[0.3, -1.0]);
+        let lugre = TableFriction::LuGre(LuGre {
+            stiffness_n_per_m: 1e7,
+            damping_n_s_per_m: 50.0,
+            viscous_n_s_per_m: 20.0,
+            coulomb_force_n: fc,
+            static_force_n: 1.3 * fc,
+            stribeck_velocity_m_per_s: 5e-4,
+        });
+        let gms = TableFriction::Gms(Gms {
+            n_elements: 3,
+            stiffness_n_per_m: [3e7, 1e7, 3e6, 1.0, 1.0, 1.0, 1.0, 1.0],
+            weights: [0.3, 0.3, 0.4, 0.0, 0.0, 0.0, 0.0, 0.0],
+            coulomb_force_n: fc,
+            static_force_n: 1.2 * fc,
+            stribeck_velocity_m_per_s: 1e-3,
+            viscous_n_s_per_m: 10.0,
+        });
+        let link = Link {
+            stiffness_n_per_m: 4.9e7,
+            damping_n_s_per_m: 2e3,
+            backlash_m: 0.0,
+        };
+        let mut out = vec![base];
+        let mut c = base;
+        if let Some(m) = c.motor_friction.as_mut() {
+            m.dwell = map.dwell;
+            m.memory_lag_s = map.memory_lag_s;
+            m.asymmetry = 0.1;
+        }
+        c.motor_modulation = modulation;
+        out.push(c);
+        for tf in [TableFriction::Static(map), lugre, gms, base.table_friction] {
+            let mut c = base;
+            c.table_friction = tf;
+            out.push(c);
+            c.table_modulation = modulation;
+            out.push(c);
+            c.n_links = 1;
+            c.links[0] = link;
+            out.push(c);
+            c.links[0].backlash_m = 20e-6;
+            out.push(c);
+            c.n_links = 2;
+            c.links[1] = link;
+            c.amplifier = Some(Amplifier {
+                bandwidth_hz: 300.0,
+                slew_v_per_s: 1e9,
+            });
+            out.push(c);
+        }
+        let mut c = base;
+        c.amplifier = Some(Amplifier {
+            bandwidth_hz: 300.0,
+            slew_v_per_s: 1e9,
+        });
+        if let Actuator::DcMotor { motor, .. } = &mut c.actuator {
+            motor.quasi_static_current = true;
+        }
+        out.push(c);
+        let mut c = base;
+        c.actuator = Actuator::ForceDrive {
+            gain_n_per_v: 20.0,
+            drive_mass_kg: 0.5,
+        };
+        c.motor_friction = None;
+        c.table_friction = lugre;
+        c.n_links = 1;
+        c.links[0] = link;
+        c.amplifier = Some(Amplifier {
+            bandwidth_hz: 1e3,
+            slew_v_per_s: 1e9,
+        });
+        out.push(c);
+        out
+    }
+
+    #[test]
+    fn analytic_jacobian_matches_forward_differences() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut checked = 0;
+        for params in configs() {
+            let drive = Drive::new(params).expect("valid");
+            let n = drive.n_state;
+            for trial in 0..200 {
+                let mut y = SVector::<f64, 24>::zeros();
+                for j in 0..drive.n_mass {
+                    y[2 * j] = 1e-4 * next();
+                    y[2 * j + 1] = 10f64.powf(-2.0 - 3.0 * next().abs()) * next().signum();
+                }
+                for k in 2 * drive.n_mass..drive.i_fric {
+                    y[k] = next() * drive.scales[k];
+                }
+                for k in drive.i_clock.iter().flatten() {
+                    y[*k] = 0.2 * next().abs();
+                }
+                for k in drive.i_fric..n {
+                    y[k] = 1.3 * next() * drive.scales[k];
+                }
+                let mut modes = drive.initial_modes();
+                for (j, m) in modes.iter_mut().enumerate().take(drive.n_mass) {
+                    if *m == MassMode::Stuck && trial % 4 != 0 {
+                        *m = MassMode::Slip(y[2 * j + 1].signum());
+                    }
+                }
+                let inp = Inputs {
+                    u_v: 3.0 * next(),
+                    force_n: 2.0 * next(),
+                    friction_scale: 1.0 + 0.2 * next(),
+                };
+                let seg = Segment {
+                    drive: &drive,
+                    inp,
+                    modes,
+                };
+                let mut f0 = SVector::<f64, 24>::zeros();
+                OdeSystem::<24>::rhs(&seg, &y, &mut f0);
+                let mut fd = SMatrix::<f64, 24, 24>::zeros();
+                seg.difference_jacobian(&y, &f0, &mut fd);
+                let mut an = SMatrix::<f64, 24, 24>::zeros();
+                OdeSystem::<24>::jacobian(&seg, &y, &mut an);
+                for r in 0..n {
+                    // Scale of the row: its largest entry times the column's state scale.
+                    let row_scale = (0..n)
+                        .map(|c| (fd[(r, c)] * drive.scales[c]).abs())
+                        .fold(0.0, f64::max);
+                    for c in 0..n {
+                        let err = (an[(r, c)] - fd[(r, c)]).abs() * drive.scales[c];
+                        assert!(
+                            err <= 1e-4 * row_scale + 1e-3 * (fd[(r, c)] * drive.scales[c]).abs(),
+                            "{params:?}\nrow {r} col {c}: analytic {} fd {} (row scale {row_scale})\ny {:?} modes {modes:?}",
+                            an[(r, c)],
+                            fd[(r, c)],
+                            &y.as_slice()[..n]
+                        );
+                        if drive.arrowhead && r != c && r != 1 && c != 1 {
+                            assert_eq!(an[(r, c)], 0.0, "not an arrowhead: row {r} col {c}");
+                        }
+                    }
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 1000);
     }
 }

@@ -616,7 +616,7 @@ fn run_loop(
         }
         let t_update = t_n + latency_s;
         let inp_new = Inputs { u_v: u_new, ..inp };
-        if inp_new == inp {
+        if inp_new == inp && matches!(plant, AnyPlant::Rigid(_)) {
             // The update leaves the held input as it is (e.g. at the voltage limit): the
             // plant's ODE is the same on both sides of the update instant, so one segment.
             plant.advance(&inp, t_n, times[k + 1])?;
