@@ -112,6 +112,10 @@ fn main() {
         phases(&case);
         return;
     }
+    if std::env::var("ACCURACY").is_ok() {
+        accuracy();
+        return;
+    }
     for (label, step_m, n, start) in [("100um_0.32s", 100e-6, 320, 10), ("1mm_1s", 1e-3, 1000, 10)]
     {
         let r: Vec<f64> = (0..n)
@@ -175,5 +179,33 @@ pub fn phases(case: &str) {
             tr.motor_position_m[n - 1],
         );
         prev = (s.n_accepted, s.n_rejected, s.n_events);
+    }
+}
+
+/// Each case with the default and a tight (rtol 1e-10, atol 1e-14 m) integrator: the largest
+/// position difference up to the first sample where the encoder counts differ, and that
+/// sample (`ACCURACY=1`).
+pub fn accuracy() {
+    for (label, step_m, n) in [("100um_0.32s", 100e-6, 320usize), ("1mm_1s", 1e-3, 1000)] {
+        let r: Vec<f64> = (0..n).map(|k| if k >= 10 { step_m } else { 0.0 }).collect();
+        for (name, cfg) in cases(step_m) {
+            let mut tight = cfg;
+            tight.integrator.rtol = 1e-10;
+            tight.integrator.atol_position_m = 1e-14;
+            let a = run_extended(&cfg, &r, KnownInputs::default(), None).expect("run");
+            let b = run_extended(&tight, &r, KnownInputs::default(), None).expect("run");
+            let first = (0..n).find(|&k| a.encoder_counts[k] != b.encoder_counts[k]);
+            let upto = first.unwrap_or(n);
+            let worst = (0..upto)
+                .map(|k| (a.position_m[k] - b.position_m[k]).abs())
+                .fold(0.0_f64, f64::max);
+            let all = (0..n)
+                .map(|k| (a.position_m[k] - b.position_m[k]).abs())
+                .fold(0.0_f64, f64::max);
+            println!(
+                "{label:12} {name:16} max|dx| before first count difference {worst:.2e} m; first count difference at {}; max|dx| overall {all:.2e} m",
+                first.map_or("none".to_string(), |k| k.to_string()),
+            );
+        }
     }
 }
