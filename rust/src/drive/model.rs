@@ -1,8 +1,12 @@
 //! The component plant as a hybrid ODE: a chain of 1–3 masses with links (spring, damper,
 //! dead band), a DC motor or force drive, optional amplifier dynamics, static friction maps
 //! with true stiction per mass, and a dynamic friction model (Dahl, LuGre, GMS) on the
-//! table. The state layout is built from the components; the Jacobian is a forward
-//! difference (the analytic one of the rigid seed plant lives in `model::axis`).
+//! table. The state layout is built from the components; the Jacobian is analytic
+//! ([`Drive::jacobian`], checked against forward differences in the tests), an arrowhead
+//! (hub: the velocity) for one mass without amplifier state. Tolerances follow the rigid
+//! plant's scales ([`Drive::new`]), and a stuck phase of one mass without amplifier state is
+//! solved in closed form, as in `model::axis`: with every effect off the component plant
+//! takes the rigid plant's steps.
 use super::params::{Actuator, DriveParams, Gms, LuGre, Modulation, StaticMap, TableFriction};
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd, Stats};
@@ -69,10 +73,14 @@ pub struct Drive {
     pub transmission_m_per_rad: f64,
     /// Forward efficiency η (1 for a force drive).
     pub efficiency: f64,
-    /// Typical magnitude of each state (finite-difference increments).
+    /// Typical magnitude of each state (test states, the forward-difference check).
     pub scales: Vec<f64>,
-    /// Absolute tolerance of each state per metre of position tolerance (see
-    /// [`Drive::new`]).
+    /// Absolute tolerance of each state per metre of position tolerance, on the rigid
+    /// plant's principle (`Axis::state_scales`, docs/model.md "Tolerances"): positions 1,
+    /// velocities and lagged velocities 1e3/s, a Dahl force σ, LuGre and GMS deflections 1
+    /// (lengths), the current the larger of the current that produces the presliding force of
+    /// one position tolerance and `m_0/(τ_e²·η·k_t/r)`; amplifier voltage and dwell clocks
+    /// 1e3 per unit. With the seed axis's components they equal the rigid plant's.
     pub tol_scales: Vec<f64>,
     /// The Jacobian is an arrowhead with the (only) velocity as hub: one mass, no amplifier
     /// state, and no table modulation acting on a dynamic friction state.
@@ -1278,7 +1286,7 @@ where
     /// Advance from `t0` to `t1` with the inputs held, handling stick/slip events.
     ///
     /// A stuck phase of a one-mass chain without amplifier state is solved in closed form
-    /// ([`Self::stuck_closed_form`]), as the rigid plant does. After a jump of the command
+    /// (`stuck_closed_form`), as the rigid plant does. After a jump of the command
     /// voltage the first trial step is sized from the error seen after the last jump (as
     /// `model::Plant::advance`); error control itself is unchanged.
     pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
@@ -1457,8 +1465,10 @@ mod tests {
             }),
             memory_lag_s: Some(3e-3),
         };
-        let mut modulation = Modulation::default();
-        modulation.n_terms = 2;
+        let mut modulation = Modulation {
+            n_terms: 2,
+            ..Modulation::default()
+        };
         modulation.amplitude[..2].copy_from_slice(&[0.1, 0.05]);
         modulation.wavenumber_rad_per_m[..2].copy_from_slice(&[6e3, 2e4]);
         modulation.phase_rad[..2].copy_from_slice(&[0.3, -1.0]);
