@@ -1,8 +1,12 @@
 //! The component plant as a hybrid ODE: a chain of 1–3 masses with links (spring, damper,
 //! dead band), a DC motor or force drive, optional amplifier dynamics, static friction maps
 //! with true stiction per mass, and a dynamic friction model (Dahl, LuGre, GMS) on the
-//! table. The state layout is built from the components; the Jacobian is a forward
-//! difference (the analytic one of the rigid seed plant lives in `model::axis`).
+//! table. The state layout is built from the components; the Jacobian is analytic
+//! ([`Drive::jacobian`], checked against forward differences in the tests), an arrowhead
+//! (hub: the velocity) for one mass without amplifier state. Tolerances follow the rigid
+//! plant's scales ([`Drive::new`]), and a stuck phase of one mass without amplifier state is
+//! solved in closed form, as in `model::axis`: with every effect off the component plant
+//! takes the rigid plant's steps.
 use super::params::{Actuator, DriveParams, Gms, LuGre, Modulation, StaticMap, TableFriction};
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd, Stats};
@@ -69,8 +73,24 @@ pub struct Drive {
     pub transmission_m_per_rad: f64,
     /// Forward efficiency η (1 for a force drive).
     pub efficiency: f64,
-    /// Typical magnitude of each state (finite-difference increments, tolerances).
+    /// Typical magnitude of each state (test states, the forward-difference check).
     pub scales: Vec<f64>,
+    /// Absolute tolerance of each state per metre of position tolerance, on the rigid
+    /// plant's principle (`Axis::state_scales`, docs/model.md "Tolerances"): positions 1,
+    /// velocities and lagged velocities 1e3/s, a Dahl force σ, LuGre and GMS deflections 1
+    /// (lengths), the current the larger of the current that produces the presliding force of
+    /// one position tolerance and `m_0/(τ_e²·η·k_t/r)`; amplifier voltage and dwell clocks
+    /// 1e3 per unit. With the seed axis's components they equal the rigid plant's.
+    pub tol_scales: Vec<f64>,
+    /// The Jacobian is an arrowhead with the (only) velocity as hub: one mass, no amplifier
+    /// state, and no table modulation acting on a dynamic friction state.
+    arrowhead: bool,
+    /// `StaticMap::negligible_exponent` of the motor and the table static maps.
+    negligible: [f64; 2],
+    /// A stuck phase has a closed-form solution: one mass and no amplifier state (the
+    /// current relaxes exponentially, dwell clocks run, lagged velocities decay, nothing else
+    /// moves).
+    closed_form_stuck: bool,
 }
 
 fn modulation(m: &Modulation, x: f64) -> (f64, f64) {
@@ -100,11 +120,40 @@ impl StaticMap {
     /// scale `s` (modulation × stochastic factor).
     #[inline]
     pub fn sliding_force(&self, v: f64, w: f64, d: f64, s: f64) -> f64 {
+        self.sliding_force_with(v, w, d, s, f64::INFINITY)
+    }
+
+    /// Stribeck exponent above which the exponential term cannot change the sliding force
+    /// (`e·(Fs − Fc)` below half an ulp of `Fc`; as `StribeckFriction::negligible_exponent`).
+    /// `+∞` (never skip) when `Fc = 0`.
+    pub fn negligible_exponent(&self) -> f64 {
+        let span = self.static_force_n - self.coulomb_force_n;
+        if self.coulomb_force_n > 0.0 && span > 0.0 {
+            (span / self.coulomb_force_n).ln() + 55.0 * std::f64::consts::LN_2 + 1.0
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// [`Self::sliding_force`] without the exponential where its exponent exceeds
+    /// `negligible` (from [`Self::negligible_exponent`]) or 746 (where it underflows to 0):
+    /// the same force, bit for bit. The exponent `|w/vs|^δ` is a product for δ = 2.
+    #[inline]
+    pub fn sliding_force_with(&self, v: f64, w: f64, d: f64, s: f64, negligible: f64) -> f64 {
         let q = (w.abs() / self.stribeck_velocity_m_per_s).max(1e-300);
         let e = if self.static_force_n == self.coulomb_force_n {
             0.0
         } else {
-            (-q.powf(self.stribeck_exponent)).exp()
+            let qd = if self.stribeck_exponent == 2.0 {
+                q * q
+            } else {
+                q.powf(self.stribeck_exponent)
+            };
+            if qd > 746.0 || qd > negligible {
+                0.0
+            } else {
+                (-qd).exp()
+            }
         };
         self.dir(d)
             * s
@@ -301,6 +350,14 @@ impl Drive {
             _ => 0,
         };
         let n_state = i_fric + n_fric;
+        let tol_scales = Self::tolerance_scales(
+            &params,
+            &masses,
+            r,
+            eta,
+            &scales,
+            (i_current, [i_lag_motor, i_lag_table], i_fric),
+        );
         Ok(Self {
             params,
             n_mass,
@@ -316,7 +373,71 @@ impl Drive {
             transmission_m_per_rad: r,
             efficiency: eta,
             scales,
+            tol_scales,
+            arrowhead: n_mass == 1
+                && i_amp.is_none()
+                && (n_fric == 0 || params.table_modulation.n_terms == 0),
+            closed_form_stuck: n_mass == 1 && i_amp.is_none(),
+            negligible: [
+                params
+                    .motor_friction
+                    .map_or(f64::INFINITY, |m| m.negligible_exponent()),
+                table_map.map_or(f64::INFINITY, |m| m.negligible_exponent()),
+            ],
         })
+    }
+
+    /// Absolute tolerance per metre of position tolerance for each state, on the rigid
+    /// plant's principle (`Axis::state_scales`, docs/model.md "Tolerances"): position 1;
+    /// velocity 1e3/s (one position tolerance per ms); lag states (lagged velocities) the
+    /// same; a Dahl force σ (the force of one position tolerance of presliding); LuGre and
+    /// GMS deflections 1 (they are lengths); the current the larger of the current that
+    /// produces that Dahl force and `m / (τ_e²·η·k_t/r)`, the current error whose transient
+    /// (τ_e = L/R) moves the masses by one position tolerance; other states (amplifier
+    /// voltage, dwell clocks) 1 per unit. With the seed axis's components the scales equal
+    /// the rigid plant's.
+    fn tolerance_scales(
+        params: &DriveParams,
+        masses: &[f64],
+        r: f64,
+        eta: f64,
+        scales: &[f64],
+        layout: (Option<usize>, [Option<usize>; 2], usize),
+    ) -> Vec<f64> {
+        let (i_current, i_lags, i_fric) = layout;
+        // Amplifier voltage and dwell clocks: one unit per millimetre, as before.
+        let mut t: Vec<f64> = scales.iter().map(|s| s / 1e-3).collect();
+        for j in 0..masses.len() {
+            t[2 * j] = 1.0;
+            t[2 * j + 1] = 1e3;
+        }
+        for k in i_lags.into_iter().flatten() {
+            t[k] = 1e3;
+        }
+        let presliding = match &params.table_friction {
+            TableFriction::Dahl(d) => {
+                t[i_fric] = d.stiffness_n_per_m;
+                d.stiffness_n_per_m
+            }
+            TableFriction::LuGre(l) => {
+                t[i_fric] = 1.0;
+                l.stiffness_n_per_m
+            }
+            TableFriction::Gms(g) => {
+                for v in t.iter_mut().skip(i_fric).take(g.n_elements) {
+                    *v = 1.0;
+                }
+                g.stiffness_n_per_m[..g.n_elements].iter().sum()
+            }
+            TableFriction::None | TableFriction::Static(_) => 0.0,
+        };
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (i_current, &params.actuator) {
+            let force_per_amp = eta * motor.torque_constant_nm_per_a / r;
+            let tau_e = motor.inductance_h / motor.resistance_ohm;
+            let transient = masses[0] / (tau_e * tau_e * force_per_amp);
+            t[k] = (presliding / force_per_amp).max(transient);
+        }
+        t
     }
 
     /// Index of the table mass.
@@ -467,7 +588,7 @@ impl Drive {
             let w = self.i_lag_motor.map_or(v0, |k| y[k]);
             let dwell = self.i_clock[0].map_or(0.0, |k| y[k]);
             if d0 != 0.0 {
-                out[0][1] += m.sliding_force(v0, w, d0, s0);
+                out[0][1] += m.sliding_force_with(v0, w, d0, s0, self.negligible[0]);
             }
             out[0][2] += m.capacity(1.0, s0, dwell);
             out[0][3] += m.capacity(-1.0, s0, dwell);
@@ -476,7 +597,7 @@ impl Drive {
             let w = self.i_lag_table.map_or(vt, |k| y[k]);
             let dwell = self.i_clock[t].map_or(0.0, |k| y[k]);
             if dt != 0.0 {
-                out[t][1] += m.sliding_force(vt, w, dt, st);
+                out[t][1] += m.sliding_force_with(vt, w, dt, st, self.negligible[1]);
             }
             out[t][2] += m.capacity(1.0, st, dwell);
             out[t][3] += m.capacity(-1.0, st, dwell);
@@ -524,6 +645,267 @@ impl Drive {
             let tau = m.memory_lag_s.unwrap_or(1.0);
             let t = self.table();
             head[k] = (y[2 * t + 1] - y[k]) / tau;
+        }
+    }
+
+    /// Partial derivatives of the sliding force of a static map (as
+    /// [`StaticMap::sliding_force`]) at velocity `v`, lagged velocity `w`, direction `d` and
+    /// level `s`: (∂/∂v, ∂/∂w, ∂/∂s).
+    fn sliding_partials(m: &StaticMap, w: f64, d: f64, s: f64) -> (f64, f64, f64) {
+        let dv = (1.0 + m.viscous_asymmetry * d) * m.viscous_n_s_per_m;
+        let span = m.static_force_n - m.coulomb_force_n;
+        let q = (w.abs() / m.stribeck_velocity_m_per_s).max(1e-300);
+        let (e, de_dw) = if span == 0.0 {
+            (0.0, 0.0)
+        } else {
+            let delta = m.stribeck_exponent;
+            let qd = q.powf(delta);
+            let e = (-qd).exp();
+            let dq_dw = if w.abs() / m.stribeck_velocity_m_per_s > 1e-300 {
+                w.signum() / m.stribeck_velocity_m_per_s
+            } else {
+                0.0
+            };
+            (e, -e * delta * qd / q * dq_dw)
+        };
+        let dir = m.dir(d);
+        (
+            dv,
+            dir * s * span * de_dw * d,
+            dir * (m.coulomb_force_n + span * e) * d,
+        )
+    }
+
+    /// The Jacobian of [`Self::rhs`] (same modes and inputs), analytic: `set(r, c, v)` adds
+    /// `v` to entry (r, c). Entries that are structurally zero are never touched (the
+    /// arrowhead declaration relies on it). Kinks (dead band edges, the contact ramp's ends,
+    /// the amplifier's slew limit, the GMS yield thresholds) take the derivative of the side
+    /// the state is on.
+    pub fn jacobian(
+        &self,
+        y: &[f64],
+        inp: &Inputs,
+        modes: &[MassMode; MAX_MASSES],
+        set: &mut impl FnMut(usize, usize, f64),
+    ) {
+        let p = &self.params;
+        let n = self.n_state;
+        // Gradient of the net force (drive, links, table, minus sliding) on each mass.
+        let mut grad = [[0.0; 32]; MAX_MASSES];
+        match &p.actuator {
+            Actuator::DcMotor { motor, .. } => {
+                let fpa =
+                    self.efficiency * motor.torque_constant_nm_per_a / self.transmission_m_per_rad;
+                match self.i_current {
+                    Some(k) => grad[0][k] += fpa,
+                    None => {
+                        grad[0][1] -= fpa * motor.back_emf_v_s_per_rad
+                            / (self.transmission_m_per_rad * motor.resistance_ohm);
+                        if let Some(a) = self.i_amp {
+                            grad[0][a] += fpa / motor.resistance_ohm;
+                        }
+                    }
+                }
+            }
+            Actuator::ForceDrive { gain_n_per_v, .. } => {
+                if let Some(a) = self.i_amp {
+                    grad[0][a] += gain_n_per_v;
+                }
+            }
+        }
+        for k in 0..p.n_links {
+            let l = &p.links[k];
+            let delta = y[2 * k] - y[2 * k + 2];
+            let ddelta = y[2 * k + 1] - y[2 * k + 3];
+            let half = 0.5 * l.backlash_m;
+            let (pen, dpen) = if delta > half {
+                (delta - half, 1.0)
+            } else if delta < -half {
+                (delta + half, 1.0)
+            } else {
+                (0.0, 0.0)
+            };
+            let (contact, dcontact) = if l.backlash_m == 0.0 {
+                (1.0, 0.0)
+            } else if pen.abs() / 1e-9 < 1.0 {
+                (pen.abs() / 1e-9, pen.signum() / 1e-9 * dpen)
+            } else {
+                (1.0, 0.0)
+            };
+            let df_dd = l.stiffness_n_per_m * dpen + l.damping_n_s_per_m * ddelta * dcontact;
+            let df_dv = l.damping_n_s_per_m * contact;
+            for (mass, sign) in [(k, -1.0), (k + 1, 1.0)] {
+                grad[mass][2 * k] += sign * df_dd;
+                grad[mass][2 * k + 2] -= sign * df_dd;
+                grad[mass][2 * k + 1] += sign * df_dv;
+                grad[mass][2 * k + 3] -= sign * df_dv;
+            }
+        }
+        let t = self.table();
+        let vt = y[2 * t + 1];
+        let dt = Self::direction(modes[t], vt);
+        let (mod_t, dmod_t) = modulation(&p.table_modulation, y[2 * t]);
+        let st = inp.friction_scale * mod_t;
+        let dst_dx = inp.friction_scale * dmod_t;
+        let table_modulated = p.table_modulation.n_terms > 0;
+        let zi = self.i_fric;
+        // Rows of the dynamic friction states, and the table force's gradient.
+        match &p.table_friction {
+            TableFriction::Dahl(dahl) => {
+                grad[t][zi] -= 1.0;
+                let scaled = DahlFriction {
+                    coulomb_force_n: dahl.coulomb_force_n * st,
+                    ..*dahl
+                };
+                let dd = if dt == 0.0 { 1.0 } else { dt };
+                let (_, dz_dv, dz_dz) = scaled.rate(vt, y[zi], dd);
+                set(zi, 2 * t + 1, dz_dv);
+                set(zi, zi, dz_dz);
+                if table_modulated {
+                    set(zi, 2 * t, -(y[zi] / st) * dz_dz * dst_dx);
+                }
+            }
+            TableFriction::LuGre(l) => {
+                let z = y[zi];
+                let q = vt / l.stribeck_velocity_m_per_s;
+                let ex = (-q * q).exp();
+                let gg = l.coulomb_force_n + (l.static_force_n - l.coulomb_force_n) * ex;
+                let dgg_dv = (l.static_force_n - l.coulomb_force_n)
+                    * ex
+                    * (-2.0 * q / l.stribeck_velocity_m_per_s);
+                let g = st * gg;
+                let s0 = l.stiffness_n_per_m;
+                let dzd_dz = -s0 * vt.abs() / g;
+                let dzd_dv = 1.0 - s0 * z * (vt.signum() * g - vt.abs() * st * dgg_dv) / (g * g);
+                let dzd_ds = s0 * vt.abs() * z * gg / (g * g);
+                set(zi, zi, dzd_dz);
+                set(zi, 2 * t + 1, dzd_dv);
+                grad[t][zi] -= s0 + l.damping_n_s_per_m * dzd_dz;
+                grad[t][2 * t + 1] -= l.damping_n_s_per_m * dzd_dv + l.viscous_n_s_per_m;
+                if table_modulated {
+                    set(zi, 2 * t, dzd_ds * dst_dx);
+                    grad[t][2 * t] -= l.damping_n_s_per_m * dzd_ds * dst_dx;
+                }
+            }
+            TableFriction::Gms(g) => {
+                grad[t][2 * t + 1] -= g.viscous_n_s_per_m;
+                let q = vt / g.stribeck_velocity_m_per_s;
+                let ex = (-q * q).exp();
+                let sv = g.slip_force(vt, st);
+                let dsv_dv = st
+                    * (g.static_force_n - g.coulomb_force_n)
+                    * ex
+                    * (-2.0 * q / g.stribeck_velocity_m_per_s);
+                let beta = GMS_ELASTIC_FRACTION;
+                for i in 0..g.n_elements {
+                    let k = zi + i;
+                    grad[t][k] -= g.stiffness_n_per_m[i];
+                    let z_max = g.weights[i] * sv / g.stiffness_n_per_m[i];
+                    let w = vt.signum() * y[k] / z_max;
+                    let (alpha, dalpha) = if w <= beta {
+                        (0.0, 0.0)
+                    } else if w <= 1.0 {
+                        let u = (w - beta) / (1.0 - beta);
+                        (smoothstep(u), 6.0 * u * (1.0 - u) / (1.0 - beta))
+                    } else {
+                        (w, 1.0)
+                    };
+                    if vt == 0.0 {
+                        // The forward difference in v sees the rate v·(1 − α) from v = 0.
+                        let w0 = y[k] / z_max;
+                        let a0 = if w0 <= beta {
+                            0.0
+                        } else if w0 <= 1.0 {
+                            smoothstep((w0 - beta) / (1.0 - beta))
+                        } else {
+                            w0
+                        };
+                        set(k, 2 * t + 1, 1.0 - a0);
+                        continue;
+                    }
+                    let dzmax_dv = g.weights[i] * dsv_dv / g.stiffness_n_per_m[i];
+                    set(k, k, -vt.abs() * dalpha / z_max);
+                    set(
+                        k,
+                        2 * t + 1,
+                        (1.0 - alpha) + vt * dalpha * (w / z_max) * dzmax_dv,
+                    );
+                    if table_modulated {
+                        set(k, 2 * t, vt * dalpha * w / st * dst_dx);
+                    }
+                }
+            }
+            TableFriction::None | TableFriction::Static(_) => {}
+        }
+        if let Some(m) = &p.motor_friction {
+            let v0 = y[1];
+            let d0 = Self::direction(modes[0], v0);
+            if d0 != 0.0 {
+                let (mod0, dmod0) = modulation(&p.motor_modulation, y[0]);
+                let s0 = inp.friction_scale * mod0;
+                let w = self.i_lag_motor.map_or(v0, |k| y[k]);
+                let (dv, dw, ds) = Self::sliding_partials(m, w, d0, s0);
+                grad[0][1] -= dv;
+                match self.i_lag_motor {
+                    Some(k) => grad[0][k] -= dw,
+                    None => grad[0][1] -= dw,
+                }
+                if p.motor_modulation.n_terms > 0 {
+                    grad[0][0] -= ds * inp.friction_scale * dmod0;
+                }
+            }
+        }
+        if let TableFriction::Static(m) = &p.table_friction {
+            if dt != 0.0 {
+                let w = self.i_lag_table.map_or(vt, |k| y[k]);
+                let (dv, dw, ds) = Self::sliding_partials(m, w, dt, st);
+                grad[t][2 * t + 1] -= dv;
+                match self.i_lag_table {
+                    Some(k) => grad[t][k] -= dw,
+                    None => grad[t][2 * t + 1] -= dw,
+                }
+                if table_modulated {
+                    grad[t][2 * t] -= ds * dst_dx;
+                }
+            }
+        }
+        for j in 0..self.n_mass {
+            if modes[j] == MassMode::Stuck {
+                continue;
+            }
+            set(2 * j, 2 * j + 1, 1.0);
+            for (c, g) in grad[j].iter().enumerate().take(n) {
+                if *g != 0.0 {
+                    set(2 * j + 1, c, g / self.mass_kg[j]);
+                }
+            }
+        }
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (self.i_current, &p.actuator) {
+            set(k, k, -motor.resistance_ohm / motor.inductance_h);
+            set(
+                k,
+                1,
+                -motor.back_emf_v_s_per_rad / (self.transmission_m_per_rad * motor.inductance_h),
+            );
+            if let Some(a) = self.i_amp {
+                set(k, a, 1.0 / motor.inductance_h);
+            }
+        }
+        if let (Some(k), Some(a)) = (self.i_amp, &p.amplifier) {
+            let w = 2.0 * std::f64::consts::PI * a.bandwidth_hz;
+            if (w * (inp.u_v - y[k])).abs() < a.slew_v_per_s {
+                set(k, k, -w);
+            }
+        }
+        if let (Some(k), Some(m)) = (self.i_lag_motor, &p.motor_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            set(k, 1, 1.0 / tau);
+            set(k, k, -1.0 / tau);
+        }
+        if let (Some(k), TableFriction::Static(m)) = (self.i_lag_table, &p.table_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            set(k, 2 * t + 1, 1.0 / tau);
+            set(k, k, -1.0 / tau);
         }
     }
 
@@ -614,6 +996,35 @@ struct Segment<'a> {
     modes: [MassMode; MAX_MASSES],
 }
 
+#[cfg(test)]
+impl Segment<'_> {
+    /// Forward-difference Jacobian at `y` given `f0 = f(y)` (the check of the analytic one).
+    fn difference_jacobian<const N: usize>(
+        &self,
+        y: &SVector<f64, N>,
+        f0: &SVector<f64, N>,
+        jac: &mut SMatrix<f64, N, N>,
+    ) {
+        let n = self.drive.n_state;
+        jac.fill(0.0);
+        let mut f1 = [0.0; 32];
+        let mut yp = [0.0; 32];
+        yp[..n].copy_from_slice(&y.as_slice()[..n]);
+        for c in 0..n {
+            let h = 1e-7 * yp[c].abs().max(self.drive.scales[c]);
+            let keep = yp[c];
+            yp[c] = keep + h;
+            let h = yp[c] - keep;
+            self.drive
+                .rhs(&yp[..n], &mut f1[..n], &self.inp, &self.modes);
+            yp[c] = keep;
+            for r in 0..n {
+                jac[(r, c)] = (f1[r] - f0[r]) / h;
+            }
+        }
+    }
+}
+
 impl<const N: usize> OdeSystem<N> for Segment<'_> {
     fn rhs(&self, y: &SVector<f64, N>, dy: &mut SVector<f64, N>) {
         let n = self.drive.n_state;
@@ -628,23 +1039,19 @@ impl<const N: usize> OdeSystem<N> for Segment<'_> {
     fn jacobian(&self, y: &SVector<f64, N>, jac: &mut SMatrix<f64, N, N>) {
         let n = self.drive.n_state;
         jac.fill(0.0);
-        let mut f0 = [0.0; 32];
-        let mut f1 = [0.0; 32];
-        let mut yp = [0.0; 32];
-        yp[..n].copy_from_slice(&y.as_slice()[..n]);
-        self.drive
-            .rhs(&yp[..n], &mut f0[..n], &self.inp, &self.modes);
-        for c in 0..n {
-            let h = 1e-7 * yp[c].abs().max(self.drive.scales[c]);
-            let keep = yp[c];
-            yp[c] = keep + h;
-            let h = yp[c] - keep;
-            self.drive
-                .rhs(&yp[..n], &mut f1[..n], &self.inp, &self.modes);
-            yp[c] = keep;
-            for r in 0..n {
-                jac[(r, c)] = (f1[r] - f0[r]) / h;
-            }
+        self.drive.jacobian(
+            &y.as_slice()[..n],
+            &self.inp,
+            &self.modes,
+            &mut |r, c, v| jac[(r, c)] += v,
+        );
+    }
+
+    fn arrowhead_hub(&self) -> Option<usize> {
+        if self.drive.arrowhead {
+            Some(1)
+        } else {
+            None
         }
     }
 
@@ -677,7 +1084,14 @@ pub struct DrivePlant<const N: usize> {
     /// The integrator.
     pub integrator: Rodas4<N>,
     atol: SVector<f64, N>,
+    /// Command voltage of the last `advance` call (NaN before the first).
+    u_last: f64,
+    /// Error norm per (volt of input jump · s³ of first step) seen after the last jump.
+    jump_error_rate: Option<f64>,
 }
+
+/// Error norm the first trial step after an input jump aims at (as `model::Plant`).
+const JUMP_FIRST_STEP_ERROR: f64 = 0.8;
 
 impl<const N: usize> DrivePlant<N>
 where
@@ -688,8 +1102,8 @@ where
         let mut atol = SVector::<f64, N>::repeat(1.0);
         // Tolerances relative to the position tolerance, scaled per state like the rigid
         // plant: a velocity of 1e3/s, a force state σ·x, etc. (state scale / 1 mm).
-        for (k, s) in drive.scales.iter().enumerate() {
-            atol[k] = options.atol_position_m * s / 1e-3;
+        for (k, s) in drive.tol_scales.iter().enumerate() {
+            atol[k] = options.atol_position_m * s;
         }
         let modes = drive.initial_modes();
         Ok(Self {
@@ -698,7 +1112,123 @@ where
             modes,
             integrator,
             atol,
+            u_last: f64::NAN,
+            jump_error_rate: None,
         })
+    }
+
+    /// The state a time `dt` into a stuck phase of the one-mass chain (see
+    /// [`Drive::closed_form_stuck`]) that starts at `y0` with the inputs `inp`.
+    fn stuck_state(&self, y0: &SVector<f64, N>, inp: &Inputs, dt: f64) -> SVector<f64, N> {
+        let d = &self.drive;
+        let mut y = *y0;
+        if let (Some(k), Actuator::DcMotor { motor, .. }) = (d.i_current, &d.params.actuator) {
+            // di/dt = (u − R·i)/L with the velocity zero.
+            let i_inf = inp.u_v / motor.resistance_ohm;
+            let rate = motor.resistance_ohm / motor.inductance_h;
+            y[k] = i_inf + (y0[k] - i_inf) * (-rate * dt).exp();
+        }
+        if let Some(k) = d.i_clock[0] {
+            y[k] = y0[k] + dt;
+        }
+        if let (Some(k), Some(m)) = (d.i_lag_motor, &d.params.motor_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            y[k] = y0[k] * (-dt / tau).exp();
+        }
+        if let (Some(k), TableFriction::Static(m)) = (d.i_lag_table, &d.params.table_friction) {
+            let tau = m.memory_lag_s.unwrap_or(1.0);
+            y[k] = y0[k] * (-dt / tau).exp();
+        }
+        y
+    }
+
+    /// Holding force of the stuck mass 0 and its capacities (+, −) at `y`.
+    fn stuck_forces(&self, y: &SVector<f64, N>, inp: &Inputs) -> (f64, f64, f64) {
+        let n = self.drive.n_state;
+        let mut m = self.modes;
+        m[0] = MassMode::Stuck;
+        let f = self.drive.forces(&y.as_slice()[..n], inp, &m, None)[0];
+        (f[0], f[2], f[3])
+    }
+
+    /// A stuck phase of the one-mass chain from `t0` to at most `t1`, solved in closed form.
+    /// Returns the time of breakaway (the state is then the first one found past it, within
+    /// the event tolerance, as the integrator's event location leaves it) or `None` when the
+    /// mass stays stuck to `t1` (the state is then the state at `t1`).
+    ///
+    /// The holding force is affine in the current, which is monotone in time, so its
+    /// magnitude peaks at an end of any interval; the capacity is constant or (dwell) rises
+    /// with time. So `min(cap±(a)) − max(|f(a)|, |f(b)|)` bounds the event value from below
+    /// on `[a, b]`: intervals whose bound is ≥ 0 hold for sure, the others are halved (left
+    /// first) until a negative event value is found or they are narrower than the event
+    /// tolerance.
+    fn stuck_closed_form(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Option<f64> {
+        let y0 = self.y;
+        let tol = self.integrator.options.event_tol_s;
+        let eval = |s: &Self, dt: f64| {
+            let y = s.stuck_state(&y0, inp, dt);
+            let (f, cp, cm) = s.stuck_forces(&y, inp);
+            let cap = if f >= 0.0 { cp } else { cm };
+            (y, f, cp.min(cm), cap - f.abs())
+        };
+        let dt_end = t1 - t0;
+        let (_, f_a0, capmin_a0, g0) = eval(self, 0.0);
+        let (y_end, f_end, _, g_end) = eval(self, dt_end);
+        // Find the first interval [a, b] with g(b) < 0 (or none).
+        let mut bracket: Option<(f64, f64)> = None;
+        if g0 < 0.0 {
+            // Held although the force exceeds the capacity (the Zeno guard of `advance`):
+            // as in the integrator, an event needs the value to go from ≥ 0 to < 0.
+        } else if self.drive.i_clock[0].is_none() {
+            // Constant capacity: |f| peaks at an end, so g(end) ≥ 0 means no breakaway.
+            if g_end < 0.0 {
+                bracket = Some((0.0, dt_end));
+            }
+        } else {
+            // (a, b, f(a), min cap(a), f(b)), left intervals on top.
+            let mut stack: Vec<(f64, f64, f64, f64, f64)> =
+                vec![(0.0, dt_end, f_a0, capmin_a0, f_end)];
+            let mut evals = 0usize;
+            while let Some((a, b, fa, capa, fb)) = stack.pop() {
+                if capa - fa.abs().max(fb.abs()) >= 0.0 {
+                    continue;
+                }
+                let (_, _, _, gb) = eval(self, b);
+                if gb < 0.0 {
+                    bracket = Some((a, b));
+                    break;
+                }
+                evals += 1;
+                if b - a <= tol || evals > 400 {
+                    continue;
+                }
+                let m = 0.5 * (a + b);
+                let (_, fm, capm, _) = eval(self, m);
+                stack.push((m, b, fm, capm, fb));
+                stack.push((a, m, fa, capa, fm));
+            }
+        }
+        let Some((mut a, mut b)) = bracket else {
+            self.y = y_end;
+            return None;
+        };
+        // Bisection on the event value: g(a) ≥ 0 > g(b).
+        let mut yb = eval(self, b).0;
+        for _ in 0..200 {
+            if b - a <= tol {
+                break;
+            }
+            let m = 0.5 * (a + b);
+            let (ym, _, _, gm) = eval(self, m);
+            if gm < 0.0 {
+                b = m;
+                yb = ym;
+            } else {
+                a = m;
+            }
+        }
+        self.y = yb;
+        Some(t0 + b)
     }
 
     fn resolve(&mut self, inp: &Inputs, force_stuck: bool) {
@@ -754,7 +1284,15 @@ where
     }
 
     /// Advance from `t0` to `t1` with the inputs held, handling stick/slip events.
+    ///
+    /// A stuck phase of a one-mass chain without amplifier state is solved in closed form
+    /// (`stuck_closed_form`), as the rigid plant does. After a jump of the command
+    /// voltage the first trial step is sized from the error seen after the last jump (as
+    /// `model::Plant::advance`); error control itself is unchanged.
     pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+        let jump = (inp.u_v - self.u_last).abs();
+        self.u_last = inp.u_v;
+        let mut at_jump = jump > 0.0;
         let mut t = t0;
         let mut events_here = 0usize;
         let mut t_last_event = f64::NEG_INFINITY;
@@ -762,15 +1300,47 @@ where
             if events_here < MAX_EVENTS_AT_ONE_INSTANT {
                 self.try_breakaway(inp);
             }
+            if self.drive.closed_form_stuck && self.modes[0] == MassMode::Stuck {
+                match self.stuck_closed_form(inp, t, t1) {
+                    None => return Ok(()),
+                    Some(t_s) => {
+                        t = t_s;
+                        let (f, _) = self.drive.holding(
+                            &self.y.as_slice()[..self.drive.n_state],
+                            inp,
+                            &self.modes,
+                            0,
+                        );
+                        self.modes[0] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
+                        continue;
+                    }
+                }
+            }
             let seg = Segment {
                 drive: &self.drive,
                 inp: *inp,
                 modes: self.modes,
             };
-            match self
+            let learn = at_jump && t == t0;
+            if learn {
+                if let Some(rate) = self.jump_error_rate {
+                    self.integrator
+                        .limit_next_step((JUMP_FIRST_STEP_ERROR / (rate * jump)).cbrt());
+                }
+            }
+            at_jump = false;
+            let end = self
                 .integrator
-                .integrate(&seg, t, t1, &mut self.y, &self.atol)?
-            {
+                .integrate(&seg, t, t1, &mut self.y, &self.atol)?;
+            if learn {
+                if let Some((h, err)) = self.integrator.first_accepted() {
+                    let rate = err / (jump * h * h * h);
+                    if rate.is_finite() && rate > 0.0 {
+                        self.jump_error_rate = Some(rate);
+                    }
+                }
+            }
+            match end {
                 SegmentEnd::Reached => return Ok(()),
                 SegmentEnd::Event { t_s } => {
                     if t_s - t_last_event <= self.integrator.options.event_tol_s {
@@ -869,5 +1439,187 @@ impl AnyDrivePlant {
     /// Integrator work counters.
     pub fn stats(&self) -> Stats {
         each!(self, p => p.integrator.stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::{Amplifier, DwellStatic, Link};
+    use crate::presets::seed_axis;
+
+    fn configs() -> Vec<DriveParams> {
+        let base = DriveParams::from_axis(&seed_axis());
+        let fc = 30.4;
+        let map = StaticMap {
+            static_force_n: 1.4 * fc,
+            coulomb_force_n: fc,
+            viscous_n_s_per_m: 300.0,
+            stribeck_velocity_m_per_s: 2e-3,
+            stribeck_exponent: 1.5,
+            asymmetry: 0.2,
+            viscous_asymmetry: -0.1,
+            dwell: Some(DwellStatic {
+                rise_n: 5.0,
+                time_constant_s: 0.1,
+            }),
+            memory_lag_s: Some(3e-3),
+        };
+        let mut modulation = Modulation {
+            n_terms: 2,
+            ..Modulation::default()
+        };
+        modulation.amplitude[..2].copy_from_slice(&[0.1, 0.05]);
+        modulation.wavenumber_rad_per_m[..2].copy_from_slice(&[6e3, 2e4]);
+        modulation.phase_rad[..2].copy_from_slice(&[0.3, -1.0]);
+        let lugre = TableFriction::LuGre(LuGre {
+            stiffness_n_per_m: 1e7,
+            damping_n_s_per_m: 50.0,
+            viscous_n_s_per_m: 20.0,
+            coulomb_force_n: fc,
+            static_force_n: 1.3 * fc,
+            stribeck_velocity_m_per_s: 5e-4,
+        });
+        let gms = TableFriction::Gms(Gms {
+            n_elements: 3,
+            stiffness_n_per_m: [3e7, 1e7, 3e6, 1.0, 1.0, 1.0, 1.0, 1.0],
+            weights: [0.3, 0.3, 0.4, 0.0, 0.0, 0.0, 0.0, 0.0],
+            coulomb_force_n: fc,
+            static_force_n: 1.2 * fc,
+            stribeck_velocity_m_per_s: 1e-3,
+            viscous_n_s_per_m: 10.0,
+        });
+        let link = Link {
+            stiffness_n_per_m: 4.9e7,
+            damping_n_s_per_m: 2e3,
+            backlash_m: 0.0,
+        };
+        let mut out = vec![base];
+        let mut c = base;
+        if let Some(m) = c.motor_friction.as_mut() {
+            m.dwell = map.dwell;
+            m.memory_lag_s = map.memory_lag_s;
+            m.asymmetry = 0.1;
+        }
+        c.motor_modulation = modulation;
+        out.push(c);
+        for tf in [TableFriction::Static(map), lugre, gms, base.table_friction] {
+            let mut c = base;
+            c.table_friction = tf;
+            out.push(c);
+            c.table_modulation = modulation;
+            out.push(c);
+            c.n_links = 1;
+            c.links[0] = link;
+            out.push(c);
+            c.links[0].backlash_m = 20e-6;
+            out.push(c);
+            c.n_links = 2;
+            c.links[1] = link;
+            c.amplifier = Some(Amplifier {
+                bandwidth_hz: 300.0,
+                slew_v_per_s: 1e9,
+            });
+            out.push(c);
+        }
+        let mut c = base;
+        c.amplifier = Some(Amplifier {
+            bandwidth_hz: 300.0,
+            slew_v_per_s: 1e9,
+        });
+        if let Actuator::DcMotor { motor, .. } = &mut c.actuator {
+            motor.quasi_static_current = true;
+        }
+        out.push(c);
+        let mut c = base;
+        c.actuator = Actuator::ForceDrive {
+            gain_n_per_v: 20.0,
+            drive_mass_kg: 0.5,
+        };
+        c.motor_friction = None;
+        c.table_friction = lugre;
+        c.n_links = 1;
+        c.links[0] = link;
+        c.amplifier = Some(Amplifier {
+            bandwidth_hz: 1e3,
+            slew_v_per_s: 1e9,
+        });
+        out.push(c);
+        out
+    }
+
+    #[test]
+    fn analytic_jacobian_matches_forward_differences() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut checked = 0;
+        for params in configs() {
+            let drive = Drive::new(params).expect("valid");
+            let n = drive.n_state;
+            for trial in 0..200 {
+                let mut y = SVector::<f64, 24>::zeros();
+                for j in 0..drive.n_mass {
+                    y[2 * j] = 1e-4 * next();
+                    y[2 * j + 1] = 10f64.powf(-2.0 - 3.0 * next().abs()) * next().signum();
+                }
+                for k in 2 * drive.n_mass..drive.i_fric {
+                    y[k] = next() * drive.scales[k];
+                }
+                for k in drive.i_clock.iter().flatten() {
+                    y[*k] = 0.2 * next().abs();
+                }
+                for k in drive.i_fric..n {
+                    y[k] = 1.3 * next() * drive.scales[k];
+                }
+                let mut modes = drive.initial_modes();
+                for (j, m) in modes.iter_mut().enumerate().take(drive.n_mass) {
+                    if *m == MassMode::Stuck && trial % 4 != 0 {
+                        *m = MassMode::Slip(y[2 * j + 1].signum());
+                    }
+                }
+                let inp = Inputs {
+                    u_v: 3.0 * next(),
+                    force_n: 2.0 * next(),
+                    friction_scale: 1.0 + 0.2 * next(),
+                };
+                let seg = Segment {
+                    drive: &drive,
+                    inp,
+                    modes,
+                };
+                let mut f0 = SVector::<f64, 24>::zeros();
+                OdeSystem::<24>::rhs(&seg, &y, &mut f0);
+                let mut fd = SMatrix::<f64, 24, 24>::zeros();
+                seg.difference_jacobian(&y, &f0, &mut fd);
+                let mut an = SMatrix::<f64, 24, 24>::zeros();
+                OdeSystem::<24>::jacobian(&seg, &y, &mut an);
+                for r in 0..n {
+                    // Scale of the row: its largest entry times the column's state scale.
+                    let row_scale = (0..n)
+                        .map(|c| (fd[(r, c)] * drive.scales[c]).abs())
+                        .fold(0.0, f64::max);
+                    for c in 0..n {
+                        let err = (an[(r, c)] - fd[(r, c)]).abs() * drive.scales[c];
+                        assert!(
+                            err <= 1e-4 * row_scale + 1e-3 * (fd[(r, c)] * drive.scales[c]).abs(),
+                            "{params:?}\nrow {r} col {c}: analytic {} fd {} (row scale {row_scale})\ny {:?} modes {modes:?}",
+                            an[(r, c)],
+                            fd[(r, c)],
+                            &y.as_slice()[..n]
+                        );
+                        if drive.arrowhead && r != c && r != 1 && c != 1 {
+                            assert_eq!(an[(r, c)], 0.0, "not an arrowhead: row {r} col {c}");
+                        }
+                    }
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 1000);
     }
 }
