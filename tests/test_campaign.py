@@ -242,8 +242,9 @@ def test_ctrl_c_stops_within_a_second() -> None:
 
 
 def test_a_stop_request_from_elsewhere_marks_trials() -> None:
+    # About 1000 s simulated per trial: none may end before the stop request at 0.3 s.
     long = cycles.step_cycle(
-        step_m=100e-6, repeats=30, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
+        step_m=100e-6, repeats=1000, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
     )
     timer = threading.Timer(0.3, _core.campaign_request_stop)
     timer.start()
