@@ -218,9 +218,10 @@ def test_progress_counter_is_readable_while_running() -> None:
 
 
 def test_ctrl_c_stops_within_a_second() -> None:
-    # 20 trials of 30 s simulated each: minutes of work; SIGINT after 0.3 s.
+    # 20 trials of 1000 s simulated each: far more than 0.3 s of work however fast the
+    # plant gets (30 s trials stopped being enough); SIGINT after 0.3 s.
     long = cycles.step_cycle(
-        step_m=100e-6, repeats=30, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
+        step_m=100e-6, repeats=1000, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
     )
     timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
     t0 = time.perf_counter()
