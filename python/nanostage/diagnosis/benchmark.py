@@ -4,7 +4,7 @@ Each case draws a truth model: the seed axis with its uncertain friction levels 
 one hidden effect (or none) with random plausible parameters, trial-to-trial stochastic
 friction, encoder noise before quantisation, and a much finer integrator tolerance. It
 simulates a designed set of experiments (several step sizes and start positions, both
-directions, reversals, two dwell times, four repeated experiments, integral-only breakaway
+directions, reversals, two dwell times, six repeated experiments, integral-only breakaway
 tests after dwells of 0.05 to 1.5 s), writes them as CSV traces
 with a manifest, and runs the diagnosis on the files alone.
 
@@ -109,10 +109,14 @@ DESIGN: tuple[
     ((-200e-6, 200e-6), 19.6e-3, (0.5, MOVE_S), "validate", None),
     ((100e-6,), 5.0e-3, (0.02,), "train", None),
     ((100e-6,), 5.0e-3, (0.02,), "validate", None),
-    # Repeats of a training and a validation step, validation only (cheap), so that the
-    # noise floor is the mean of four repeat pairs rather than one pair's spread.
+    # Repeats of training steps of every kind, validation only (cheap), so that the noise
+    # floor is the mean of six repeat pairs covering the quiet and the noisy experiments
+    # (with the 1 mm step and the reversal left out, the floor was about half the no-effect
+    # gap and position-dependent candidates passed for effects on two of six null cases).
     ((-500e-6,), 9.3e-3, (0.02,), "validate", None),
     ((-100e-6,), 4.5e-3, (0.5,), "validate", None),
+    ((1e-3,), 12.0e-3, (0.02,), "validate", None),
+    ((200e-6, -200e-6), 17.0e-3, (0.02, MOVE_S), "validate", None),
     ((300e-9,) * 4, 22.3e-3 + MID_COUNT_M, (1.5, 0.05, 0.8, 0.1), "train", BREAKAWAY_GAINS),
     # Its repeat (validation only), so that the noise floor sees the breakaway tests' scatter.
     ((300e-9,) * 4, 22.3e-3 + MID_COUNT_M, (1.5, 0.05, 0.8, 0.1), "validate", BREAKAWAY_GAINS),
