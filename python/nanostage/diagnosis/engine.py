@@ -128,6 +128,8 @@ class FitProblem:
         self.adapt = adapt
         self.n_evaluations = 0
         self.scale_m = 1e-7
+        #: :func:`gap_plan` of each experiment (by name), computed on first use.
+        self._plans: dict[str, list[HoldPlan]] = {}
 
     def residuals(self, system: System, experiments: Sequence[Experiment]) -> list[FloatArray]:
         """Per-experiment gap (measured − simulated mean reading). The command residuals of
@@ -141,7 +143,9 @@ class FitProblem:
         self.last_command_ms: list[float | None] = []
         for e, f in zip(experiments, futures, strict=True):
             reading, command = f.result()
-            out.append(gap_residual(e.position_m, reading, e.reference_m))
+            if e.name not in self._plans:
+                self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
+            out.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
             self.last_command_ms.append(
                 None if e.command_v is None else float(np.mean((e.command_v - command) ** 2))
             )
@@ -355,13 +359,24 @@ def gap_residual(
 
     An experiment whose reference never moves is driven by a known input (an open-loop
     pulse or a disturbance test): its response is compared sample by sample throughout."""
+    return apply_gap_plan(gap_plan(measured_m, reference_m), measured_m, simulated_m)
+
+
+#: How :func:`gap_residual` compares one hold: ``(a, h, b, aligned, order)``: samples
+#: ``[a, h)`` sample by sample (after the best time shift when ``aligned``), ``[h, b)`` as
+#: sorted values (``order``: the measured samples' ranks there).
+HoldPlan = tuple[int, int, int, bool, npt.NDArray[np.intp]]
+
+
+def gap_plan(measured_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> list[HoldPlan]:
+    """The part of :func:`gap_residual` that depends on the measured data only (computed
+    once per experiment by the fits, which compare many simulations with it)."""
     m = np.asarray(measured_m, dtype=np.float64)
-    s = np.asarray(simulated_m, dtype=np.float64)
     ref = np.asarray(reference_m, dtype=np.float64)
-    r = m - s
     if ref.size == 0 or np.all(ref == ref[0]):
-        return r
+        return []
     q = _quantum(m)
+    plan: list[HoldPlan] = []
     unsettled = False
     for a, b in hold_intervals(ref):
         step = abs(ref[a] - ref[a - 1]) if a > 0 else 0.0
@@ -369,16 +384,27 @@ def gap_residual(
         start_side = side[0]
         crossed = np.flatnonzero(side != start_side) if start_side != 0 else np.array([0])
         h = a + int(crossed[0]) if crossed.size else a + (b - a) // 2
-        if unsettled and h > a:
-            r[a:h] = m[a:h] - _best_shift(m, s, a, h, SETTLE_WINDOW)
-        if b - h > 1:
-            order = np.argsort(m[h:b], kind="stable")
-            aligned = np.empty(b - h)
-            aligned[order] = np.sort(s[h:b])
-            r[h:b] = m[h:b] - aligned
+        plan.append((a, h, b, unsettled and h > a, np.argsort(m[h:b], kind="stable")))
         tail = m[max(a, b - SETTLE_WINDOW) : b]
         spread = float(np.ptp(tail)) if tail.size else 0.0
         unsettled = spread > UNSETTLED_QUANTA * q and spread > UNSETTLED_STEP_FRACTION * step
+    return plan
+
+
+def apply_gap_plan(
+    plan: Sequence[HoldPlan], measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike
+) -> FloatArray:
+    """:func:`gap_residual` from its plan (:func:`gap_plan` of the same measured data)."""
+    m = np.asarray(measured_m, dtype=np.float64)
+    s = np.asarray(simulated_m, dtype=np.float64)
+    r = m - s
+    for a, h, b, aligned_move, order in plan:
+        if aligned_move:
+            r[a:h] = m[a:h] - _best_shift(m, s, a, h, SETTLE_WINDOW)
+        if b - h > 1:
+            aligned = np.empty(b - h)
+            aligned[order] = np.sort(s[h:b])
+            r[h:b] = m[h:b] - aligned
     return r
 
 
