@@ -80,6 +80,9 @@ class Candidate:
     signature: str
     #: Integer settings tried one by one instead of fitted (delays), else empty.
     discrete: tuple[int, ...] = ()
+    #: Points of the global scan before the local fits, where the default
+    #: (:attr:`DiagnosisSettings.scan_points` per parameter) is too coarse for a rugged gap.
+    scan_points: int | None = None
 
 
 def _fx(system: System, **changes: object) -> System:
@@ -362,6 +365,10 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             ),
             signature="breakaway force growing with the rest time before a move: a later "
             "start after long dwells",
+            # The gap of a dwell model is a narrow valley in (rise, time constant): too
+            # little rise changes nothing, too much delays every breakaway far too long.
+            # Each point costs one simulation of the short training set.
+            scan_points=128,
         )
 
     def memory(sys: System) -> Candidate | str:

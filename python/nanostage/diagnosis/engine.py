@@ -72,7 +72,6 @@ class DiagnosisSettings:
     penalty_base: float = 0.03
     penalty_per_param: float = 0.02
     floor_factor: float = 1.5
-    explainable_factor: float = 1.5
     command_tolerance: float = 1.1
     forward_rounds: int = 3
     forward_top: int = 8
@@ -632,6 +631,7 @@ class _Ctx:
         n_starts: int,
         seed: int,
         screen: bool = False,
+        scan_points: int | None = None,
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
@@ -669,7 +669,9 @@ class _Ctx:
                 # The first calibration of the model (no warm values) scans all its free
                 # parameters: it is cheap, and a poor local optimum there would make any
                 # candidate's refit look like an effect.
-                scan=min(self.st.scan_points * len(params), self.st.scan_points_max)
+                scan=(
+                    scan_points or min(self.st.scan_points * len(params), self.st.scan_points_max)
+                )
                 if params
                 else (0 if warm else self.st.scan_points_nominal),
             )
@@ -940,7 +942,13 @@ def _judge(
         k_params = 1
     else:
         fits, ms, _, cmd, units = ctx.fit_and_validate(
-            base, extra, cand.apply, st.n_starts_candidate, st.seed + index, screen
+            base,
+            extra,
+            cand.apply,
+            st.n_starts_candidate,
+            st.seed + index,
+            screen,
+            cand.scan_points,
         )
         k_params = len(cand.params)
     return _verdict(
@@ -998,12 +1006,6 @@ def _verdict(
     if shrink <= penalty:
         ok = False
         reasons.append(f"shrink {shrink:.1%} ≤ complexity penalty {penalty:.0%}")
-    if rms0 <= st.explainable_factor * ctx.floor:
-        ok = False
-        reasons.append(
-            f"the gap before ({rms0 * 1e9:.0f} nm) is within {st.explainable_factor}× the noise "
-            f"floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
-        )
     if gain <= floor_gain:
         ok = False
         reasons.append(
