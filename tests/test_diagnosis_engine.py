@@ -40,6 +40,7 @@ from nanostage.diagnosis.engine import (
     Fit,
     FitProblem,
     _refit_control,
+    _verdict,
     gap_residual,
     hold_intervals,
     move_units,
@@ -549,3 +550,34 @@ def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:
     assert p.returncode == 2
     assert "offset_farce" in p.stderr and "m.toml" in p.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:
+    """A clear, consistent reduction is significant when the gap before is well above the
+    noise floor; the same reduction on a gap within 1.5 floors is not ("nothing left to
+    explain"), unless the rule is turned off (``explainable_factor = 0``)."""
+    rng = np.random.default_rng(0)
+    base_ms = np.full(12, (60e-9) ** 2)
+    ms = base_ms * (0.5 + 0.02 * rng.random(12))  # every experiment better: shrink ~29 %
+
+    def judge(floor_m: float, factor: float) -> bool:
+        ctx = SimpleNamespace(
+            st=DiagnosisSettings(explainable_factor=factor), floor=floor_m, n_validation=12
+        )
+        r = _verdict(
+            "x",
+            [cast(Any, None)],
+            ms,
+            [None] * 12,
+            None,
+            1,
+            base_ms,
+            [None] * 12,
+            cast(Any, ctx),
+            0,
+        )
+        return r.significant
+
+    assert judge(20e-9, 1.5)
+    assert not judge(45e-9, 1.5)  # 60 nm ≤ 1.5 × 45 nm
+    assert judge(45e-9, 0.0)
