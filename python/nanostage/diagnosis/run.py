@@ -66,7 +66,9 @@ DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
     frozenset({"lead_periodic_friction", "position_random_friction"}): "the same move at "
     "start positions spaced by a quarter of the screw lead over several leads",
     frozenset({"dwell_static_friction", "stribeck"}): "the same move after dwells of "
-    "0.05 s, 0.5 s and 5 s: only rising static friction depends on the dwell",
+    "0.05 s, 0.5 s and 5 s (best: a micro-step of a few counts under integral-only control, "
+    "one step per record, so the breakaway delay measures the breakaway force): only rising "
+    "static friction depends on the dwell",
     frozenset({"frictional_memory", "stribeck"}): "moves with different accelerations to "
     "the same speed: only frictional memory depends on the rate of change of velocity",
     frozenset({"sensor_delay", "computation_delay"}): "log the controller output: a "
@@ -156,7 +158,9 @@ def experiment_advice(
                 "issue": f"all dwell times before moves lie within a factor 2 "
                 f"({min(dwells):.3g}–{max(dwells):.3g} s): rising static friction cannot be "
                 "seen",
-                "experiment": "repeat one move after dwells of 0.05 s, 0.5 s and 5 s",
+                "experiment": "repeat one move after dwells of 0.05 s, 0.5 s and 5 s, "
+                "best a micro-step of a few counts under integral-only control, one step "
+                "per record",
             }
         )
     span = max(float(np.ptp(e.position_m)) for e in experiments)
