@@ -291,13 +291,13 @@ def generate_case(
         f"seed = {seed}",
         "",
     ]
+    q = truth.encoder.count_m
     for i, (steps, x0, dwells, role, gains, hold) in enumerate(DESIGN):
         ref = design_reference(steps, x0, dwells, hold_s=hold)
         g = gains or _gains(max(abs(s) for s in steps))
         sys_i = presets.with_gains(truth, kp=g[0], ki=g[1], kd=g[2])
         # The axis rests anywhere in the reference's count (the controller sees counts
         # only), in its middle half: nearer an edge the sensor noise flickers the reading.
-        q = truth.encoder.count_m
         start = math.floor(x0 / q) * q + float(rng.uniform(0.25, 0.75)) * q
         tr = simulate(sys_i, ref, seed=seed * 1000 + i, initial_position_m=start)
         exp = Experiment(
