@@ -3,10 +3,9 @@
 //! a measurement): `latency_ticks` of the seed schedule.
 use criterion::{criterion_group, criterion_main, Criterion};
 use nanostage::control::Pid;
-use nanostage::drive::{Gms, Link, TableFriction};
 use nanostage::integrate::Rodas4;
 use nanostage::model::{Axis, Plant};
-use nanostage::presets::{seed_closed_loop, seed_pid};
+use nanostage::presets::{seed_closed_loop, seed_pid, speed_case_backlash_link, speed_case_gms6};
 use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
 use std::hint::black_box;
 
@@ -61,20 +60,8 @@ fn closed_loop_trial_effects(c: &mut Criterion) {
         .map(|k| if k >= 10 { 1e-3 } else { 0.0 })
         .collect();
     let base = ExtendedConfig::from_closed_loop(&cfg);
-    let gms = TableFriction::Gms(Gms {
-        n_elements: 6,
-        stiffness_n_per_m: [3e7, 2e7, 1e7, 6e6, 4e6, 2e6, 1.0, 1.0],
-        weights: [0.1, 0.15, 0.2, 0.2, 0.2, 0.15, 0.0, 0.0],
-        coulomb_force_n: 30.4,
-        static_force_n: 36.0,
-        stribeck_velocity_m_per_s: 1e-3,
-        viscous_n_s_per_m: 0.0,
-    });
-    let link = Link {
-        stiffness_n_per_m: 4.9e7,
-        damping_n_s_per_m: 2e3,
-        backlash_m: 20e-6,
-    };
+    let gms = speed_case_gms6();
+    let link = speed_case_backlash_link();
     let mut all = base;
     all.drive.table_friction = gms;
     all.drive.n_links = 1;

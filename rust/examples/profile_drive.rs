@@ -5,8 +5,8 @@
 //! criterion bench for the rigid seed loop and each component-plant case, printing the best
 //! wall time of REPS runs (default 20), the integrator's counters and a checksum of the
 //! positions (to see whether a change moved the trajectory). `CASE` filters by name.
-use nanostage::drive::{DwellStatic, Gms, Link, TableFriction};
-use nanostage::presets::seed_closed_loop;
+use nanostage::drive::{DwellStatic, Link, TableFriction};
+use nanostage::presets::{seed_closed_loop, speed_case_backlash_link, speed_case_gms6};
 use nanostage::sim::{run_extended, ExtendedConfig, KnownInputs};
 use std::time::Instant;
 
@@ -56,20 +56,8 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
         static_force_n: 1.3 * fc,
         stribeck_velocity_m_per_s: 5e-4,
     });
-    let gms = TableFriction::Gms(Gms {
-        n_elements: 6,
-        stiffness_n_per_m: [3e7, 2e7, 1e7, 6e6, 4e6, 2e6, 1.0, 1.0],
-        weights: [0.1, 0.15, 0.2, 0.2, 0.2, 0.15, 0.0, 0.0],
-        coulomb_force_n: 30.4,
-        static_force_n: 36.0,
-        stribeck_velocity_m_per_s: 1e-3,
-        viscous_n_s_per_m: 0.0,
-    });
-    let backlash = Link {
-        stiffness_n_per_m: 4.9e7,
-        damping_n_s_per_m: 2e3,
-        backlash_m: 20e-6,
-    };
+    let gms = speed_case_gms6();
+    let backlash = speed_case_backlash_link();
     let mut gms6 = general;
     gms6.drive.table_friction = gms;
     let mut bl = general;
