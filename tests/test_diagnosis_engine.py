@@ -41,6 +41,8 @@ from nanostage.diagnosis.engine import (
     FitProblem,
     _refit_control,
     _verdict,
+    experiment_floors_m,
+    experiment_kind,
     gap_residual,
     hold_intervals,
     move_units,
@@ -554,6 +556,22 @@ def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:
     assert not (tmp_path / "o").exists()
 
 
+def _judge_one_parameter(
+    ms: np.ndarray,
+    base_ms: np.ndarray,
+    floor_m: float,
+    weights: np.ndarray,
+    st: DiagnosisSettings,
+) -> CandidateResult:
+    """``_verdict`` of a one-parameter candidate with validation mean squares ``ms`` against
+    ``base_ms`` (no command channel, units: the experiments)."""
+    n = len(ms)
+    ctx = SimpleNamespace(st=st, floor=floor_m, n_validation=n, validation_weights=weights)
+    return _verdict(
+        "x", [cast(Any, None)], ms, [None] * n, None, 1, base_ms, [None] * n, cast(Any, ctx), 0
+    )
+
+
 def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:
     """A clear, consistent reduction is significant when the gap before is well above the
     noise floor; the same reduction on a gap within 1.5 floors is not ("nothing left to
@@ -563,23 +581,79 @@ def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:
     ms = base_ms * (0.5 + 0.02 * rng.random(12))  # every experiment better: shrink ~29 %
 
     def judge(floor_m: float, factor: float) -> bool:
-        ctx = SimpleNamespace(
-            st=DiagnosisSettings(explainable_factor=factor), floor=floor_m, n_validation=12
-        )
-        r = _verdict(
-            "x",
-            [cast(Any, None)],
-            ms,
-            [None] * 12,
-            None,
-            1,
-            base_ms,
-            [None] * 12,
-            cast(Any, ctx),
-            0,
-        )
-        return r.significant
+        st = DiagnosisSettings(explainable_factor=factor)
+        return _judge_one_parameter(ms, base_ms, floor_m, np.ones(12), st).significant
 
     assert judge(20e-9, 1.5)
     assert not judge(45e-9, 1.5)  # 60 nm ≤ 1.5 × 45 nm
     assert judge(45e-9, 0.0)
+
+
+def test_each_experiment_kind_gets_the_floor_of_its_own_repeats() -> None:
+    """Floors per kind (the step sizes, whatever the direction and the start): a quiet kind
+    (three-count steps scattering by 20 nm) and a loud one (1 mm steps scattering by
+    300 nm) each get their own repeat spread; a kind without repeats gets the overall
+    floor; no floor is below the sensor floor."""
+    q = 1e-7
+    t = np.arange(600) * 1e-3
+    rng = np.random.default_rng(3)
+
+    def run(name: str, start_m: float, step_m: float, scatter_m: float) -> Experiment:
+        ref = np.full(600, start_m)
+        ref[100:] += step_m
+        # A run-to-run different final error after the step (friction scatter), quantised.
+        dev = np.where(np.arange(600) >= 100, scatter_m * rng.standard_normal(), 0.0)
+        return Experiment(
+            name=name, time_s=t, reference_m=ref, position_m=np.floor((ref + dev) / q) * q
+        )
+
+    assert experiment_kind(run("a", 0.0, 3e-7, 0).reference_m, q) == (3,)
+    assert experiment_kind(run("b", 7e-3, -3e-7, 0).reference_m, q) == (3,)
+    assert experiment_kind(run("c", 0.0, 1e-3, 0).reference_m, q) == (10_000,)
+    quiet = [run("q1", 1e-3, 3e-7, 4e-8), run("q2", 1e-3, 3e-7, 4e-8)]
+    loud = [run("l1", 5e-3, 1e-3, 6e-7), run("l2", 5e-3, 1e-3, 6e-7)]
+    other_quiet = run("q3", 9e-3, -3e-7, 4e-8)  # same kind, elsewhere: not a repeat
+    lone = run("m", 2e-2, 5e-4, 1e-7)  # a kind without repeats
+    every = [*quiet, *loud, other_quiet, lone]
+    floors = experiment_floors_m(every, q)
+    overall = noise_floor_m(every, q)
+
+    def spread(a: Experiment, b: Experiment) -> float:
+        r = gap_residual(a.position_m, b.position_m, a.reference_m)
+        return float(np.sqrt(np.mean(r**2) / 2))
+
+    assert floors["q1"] == floors["q2"] == floors["q3"]
+    assert floors["q1"] == pytest.approx(max(spread(*quiet), q / np.sqrt(12)), rel=1e-12)
+    assert floors["l1"] == floors["l2"] == pytest.approx(spread(*loud), rel=1e-12)
+    assert floors["l1"] > 5 * floors["q1"]
+    assert floors["m"] == overall
+    assert min(floors.values()) >= q / np.sqrt(12) * (1 - 1e-12)
+
+
+def test_kind_floors_let_a_fix_of_the_quiet_experiments_count() -> None:
+    """Three quiet validation experiments (floor 25 nm) with a gap of 100 nm, nine loud ones
+    (floor 300 nm) at their floor. A candidate that brings the quiet ones to 30 nm removes
+    all there is to explain, but the unweighted gap (264 nm) is within 1.5 overall floors
+    (213 nm) and its RMS shrinks by 3 %: rejected with one floor for all, significant with
+    each experiment judged against its own floor. A change of the loud ones by a fraction
+    of their floor is not significant either way."""
+    quiet_f, loud_f = 25e-9, 300e-9
+    floors = np.array([loud_f] * 9 + [quiet_f] * 3)
+    overall = float(np.sqrt(np.mean([loud_f**2, quiet_f**2])))
+    base_ms = np.array([loud_f**2] * 9 + [(100e-9) ** 2] * 3)
+    fixed = np.array([loud_f**2] * 9 + [(30e-9) ** 2] * 3)
+    rng = np.random.default_rng(1)
+    jitter = base_ms * np.r_[1 + 0.1 * rng.standard_normal(9), np.ones(3)]
+
+    def judge(ms: np.ndarray, weighted: bool) -> CandidateResult:
+        w = (overall / floors) ** 2 if weighted else np.ones(12)
+        return _judge_one_parameter(ms, base_ms, overall, w, DiagnosisSettings())
+
+    one_floor = judge(fixed, weighted=False)
+    assert not one_floor.significant
+    assert one_floor.shrink == pytest.approx(1 - np.sqrt(np.mean(fixed) / np.mean(base_ms)))
+    own = judge(fixed, weighted=True)
+    assert own.significant, own.reasons
+    assert own.shrink == one_floor.shrink  # the reported shrink stays the plain one
+    assert own.weighted_shrink > 0.4
+    assert not judge(jitter, weighted=True).significant

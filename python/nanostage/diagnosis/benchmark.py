@@ -349,9 +349,9 @@ def run_benchmark(
         case_dir = out / f"case{c:02d}_{h}"
         manifest, truth = generate_case(h, seed * 10_000 + c, case_dir)
         t = time.perf_counter()
-        d = diagnose(
-            manifest, case_dir / "report", settings=settings, progress=False, figures=False
-        )
+        # Given settings keep the case's own random seed (the manifest's), as the defaults do.
+        st = dc.replace(settings, seed=seed * 10_000 + c) if settings else None
+        d = diagnose(manifest, case_dir / "report", settings=st, progress=False, figures=False)
         rep = d.report
         found = rep["selected"][0] if rep["selected"] else "none"
         ok = found in ACCEPT.get(h, {h})

@@ -49,6 +49,8 @@ __all__ = [
     "Fit",
     "FitProblem",
     "diagnose_experiments",
+    "experiment_floors_m",
+    "experiment_kind",
     "noise_floor_m",
 ]
 
@@ -76,6 +78,9 @@ class DiagnosisSettings:
     #: noise floors (0 turns the rule off). Measured in stop 14 on seeds 12 and 13: off, it
     #: found three more dwell cases and made two false alarms in twelve no-effect cases.
     explainable_factor: float = 1.5
+    #: Judge candidates with each validation experiment weighted by the inverse square of
+    #: its own noise floor (:func:`experiment_floors_m`) instead of one floor for all.
+    kind_floors: bool = True
     command_tolerance: float = 1.1
     forward_rounds: int = 3
     forward_top: int = 8
@@ -483,12 +488,17 @@ def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
     return simulate_reading_and_command(system, exp)[0]
 
 
-def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
-    """The gap a perfect model would leave, m: quantisation ``q/√12`` plus the white sensor
-    noise estimated from the second differences of the measured readings where the
-    reference is at rest, raised to the spread of repeated experiments (the same reference
-    at the same positions), if any. The spread of two repeats is measured with
-    :func:`gap_residual`, as the gap is."""
+def experiment_kind(reference_m: npt.ArrayLike, count_m: float) -> tuple[int, ...]:
+    """What makes two experiments comparable in scatter: the sizes of their reference's
+    steps in counts, in order, whatever the direction and the start (a 300 nm breakaway test
+    and a 1 mm step scatter very differently; a +100 µm and a −100 µm step alike)."""
+    d = np.diff(np.asarray(reference_m, dtype=float))
+    return tuple(round(abs(float(x)) / count_m) for x in d[d != 0.0])
+
+
+def _sensor_floor_var(experiments: Sequence[Experiment], count_m: float) -> float:
+    """Quantisation ``q²/12`` plus the white sensor noise estimated from the second
+    differences of the measured readings where the reference is at rest, m²."""
     noise_var = []
     for e in experiments:
         rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
@@ -497,9 +507,17 @@ def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
         if np.count_nonzero(m) > 20:
             mad = float(np.median(np.abs(d2[m] - np.median(d2[m]))))
             noise_var.append((1.4826 * mad) ** 2 / 6.0)
-    var = count_m**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
-    # Repeats: experiments with the same reference, at the same positions (the same step
-    # elsewhere on the travel is not a repeat: position-dependent friction makes it differ).
+    return count_m**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
+
+
+def _repeat_spreads(
+    experiments: Sequence[Experiment], count_m: float
+) -> list[tuple[tuple[int, ...], float]]:
+    """Half the mean-square difference of each pair of repeated experiments (the same
+    reference at the same positions: the same step elsewhere on the travel is not a repeat,
+    since position-dependent friction makes it differ), with the pair's kind. Measured like
+    the gap itself: sample by sample, but in holds as sorted values, so a limit cycle's
+    phase (which no model predicts) is not scatter."""
     groups: dict[tuple[int, float], list[Experiment]] = {}
     for e in experiments:
         key = (len(e.reference_m), round(float(e.reference_m[0]) / count_m))
@@ -508,16 +526,48 @@ def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
     for g in groups.values():
         for a, b in itertools.pairwise(g):
             if np.allclose(a.reference_m, b.reference_m, rtol=0.0, atol=count_m / 10):
-                # Measured like the gap itself: sample by sample, but in holds as sorted
-                # values, so a limit cycle's phase (which no model predicts) is not scatter.
                 r = gap_residual(a.position_m, b.position_m, a.reference_m)
-                spreads.append(float(np.mean(r**2)) / 2.0)
+                spreads.append(
+                    (experiment_kind(a.reference_m, count_m), float(np.mean(r**2)) / 2.0)
+                )
+    return spreads
+
+
+def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
+    """The gap a perfect model would leave, m: quantisation ``q/√12`` plus the white sensor
+    noise estimated from the second differences of the measured readings where the
+    reference is at rest, raised to the spread of repeated experiments (the same reference
+    at the same positions), if any. The spread of two repeats is measured with
+    :func:`gap_residual`, as the gap is."""
+    var = _sensor_floor_var(experiments, count_m)
+    spreads = [v for _, v in _repeat_spreads(experiments, count_m)]
     if spreads:
         # The mean over pairs, like the gap's mean over experiments: experiment types differ
         # in scatter (a chaotic breakaway test far more than a settled step), and a median
         # would report the quiet ones only.
         var = max(var, float(np.mean(spreads)))
     return math.sqrt(var)
+
+
+def experiment_floors_m(experiments: Sequence[Experiment], count_m: float) -> dict[str, float]:
+    """Each experiment's own noise floor, m: the spread of the repeated experiments of its
+    kind (:func:`experiment_kind`; the mean over the kind's repeat pairs), never below the
+    sensor floor; an experiment of a kind without repeats gets :func:`noise_floor_m`.
+
+    Experiment types differ in scatter by an order of magnitude (a breakaway test of three
+    counts scatters by tens of nm, a 1 mm step or a reversal by hundreds), so one floor for
+    all either hides an effect that shows in the quiet experiments only (a rising static
+    friction in the breakaway tests) or lets noise in the loud ones pass for an effect."""
+    sensor = _sensor_floor_var(experiments, count_m)
+    overall = noise_floor_m(experiments, count_m)
+    by_kind: dict[tuple[int, ...], list[float]] = {}
+    for kind, v in _repeat_spreads(experiments, count_m):
+        by_kind.setdefault(kind, []).append(v)
+    out = {}
+    for e in experiments:
+        vs = by_kind.get(experiment_kind(e.reference_m, count_m))
+        out[e.name] = math.sqrt(max(sensor, float(np.mean(vs)))) if vs else overall
+    return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -536,6 +586,9 @@ class CandidateResult:
     command_ratio: float | None
     validation_rms_m: float
     shrink: float
+    #: The shrink with each validation experiment weighted by its own noise floor (equal
+    #: to ``shrink`` without kind floors): what the complexity penalty is applied to.
+    weighted_shrink: float
     p_value: float
     significant: bool
     reasons: list[str]
@@ -553,6 +606,7 @@ class CandidateResult:
             "effect": self.effect,
             "validation_rms_m": self.validation_rms_m,
             "shrink": self.shrink,
+            "weighted_shrink": self.weighted_shrink,
             "significant": self.significant,
             "p_value": self.p_value,
             "command_ratio": self.command_ratio,
@@ -604,10 +658,19 @@ class _Ctx:
     warm: list[dict[str, float]] = field(default_factory=list)
     #: Effects selected so far, with their fitted values, in order.
     selected_effects: list[tuple[Candidate, list[float]]] = field(default_factory=list)
+    #: Per experiment name: (overall floor / its own floor)², the weight of its mean square
+    #: in the significance rules (missing: 1).
+    weights: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def n_validation(self) -> int:
         return sum(len(v) for _, v in self.folds)
+
+    @property
+    def validation_weights(self) -> FloatArray:
+        """The weight of each validation experiment, in the order of the validation mean
+        squares (folds concatenated)."""
+        return np.array([self.weights.get(e.name, 1.0) for _, v in self.folds for e in v])
 
     def builder(
         self, base: System, apply_extra: Callable[[System, Sequence[float]], System]
@@ -684,7 +747,10 @@ class _Ctx:
             residuals.append(res)
             ms += [float(np.mean(r**2)) for r in res]
             for e, r in zip(validate, res, strict=True):
-                units += [float(np.sum(r[a:b] ** 2)) / len(r) for a, b in move_units(e.reference_m)]
+                w = self.weights.get(e.name, 1.0)
+                units += [
+                    w * float(np.sum(r[a:b] ** 2)) / len(r) for a, b in move_units(e.reference_m)
+                ]
             command += prob.last_command_ms
         return fits, np.array(ms), residuals, command, np.array(units)
 
@@ -713,6 +779,8 @@ def diagnose_experiments(
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
     every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
     floor = noise_floor_m(list(every.values()), nominal.encoder.count_m)
+    floors = experiment_floors_m(list(every.values()), nominal.encoder.count_m)
+    weights = {n: (floor / f) ** 2 for n, f in floors.items()} if st.kind_floors else {}
     with ThreadPoolExecutor(max_workers=workers) as pool:
         ctx = _Ctx(
             free=free,
@@ -721,6 +789,7 @@ def diagnose_experiments(
             floor=floor,
             st=st,
             pool=pool,
+            weights=weights,
             adapt=adapt or (lambda s, e: s),
             nominal=nominal,
         )
@@ -841,6 +910,8 @@ def diagnose_experiments(
         "nominal_fits": nominal_fits,
         "nominal_validation_ms": base_ms,
         "floor_rms_m": floor,
+        "experiment_floors_m": floors,
+        "kind_floors": st.kind_floors,
         "rounds": rounds,
         "selected": selected,
         "final": current_fits[0],
@@ -990,31 +1061,41 @@ def _verdict(
     experiments."""
     st = ctx.st
     d = base_ms - ms
+    # The rules weigh each validation experiment by its own noise floor (all 1 without
+    # kind floors): in units of the overall floor, a quiet experiment's gap counts as much
+    # as a loud one's relative to what noise alone gives there. The move units come
+    # weighted from :meth:`_Ctx.fit_and_validate`.
+    w = ctx.validation_weights if len(base_ms) == ctx.n_validation else np.ones(len(base_ms))
     du = (
         base_units - units
         if units is not None and base_units is not None and len(units) == len(base_units)
-        else d
+        else w * d
     )
     p = _bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
     rms0 = math.sqrt(float(np.mean(base_ms)))
     rms1 = math.sqrt(float(np.mean(ms)))
     shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
+    wrms0 = math.sqrt(float(np.mean(w * base_ms)))
+    wrms1 = math.sqrt(float(np.mean(w * ms)))
+    weighted_shrink = 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
     penalty = st.penalty_base + st.penalty_per_param * k_params
     floor_gain = st.floor_factor * ctx.floor**2 / ctx.n_validation
-    gain = float(np.mean(d))
+    gain = float(np.mean(w * d))
+    weighted = bool(np.any(w != 1.0))
+    wtag = " (floor-weighted)" if weighted else ""
     reasons = []
     ok = True
     if p >= st.p_value:
         ok = False
-        reasons.append(f"bootstrap over validation experiments: p = {p:.2f} ≥ {st.p_value}")
-    if shrink <= penalty:
+        reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.2f} ≥ {st.p_value}")
+    if weighted_shrink <= penalty:
         ok = False
-        reasons.append(f"shrink {shrink:.1%} ≤ complexity penalty {penalty:.0%}")
-    if rms0 <= st.explainable_factor * ctx.floor:
+        reasons.append(f"shrink{wtag} {weighted_shrink:.1%} ≤ complexity penalty {penalty:.0%}")
+    if wrms0 <= st.explainable_factor * ctx.floor:
         ok = False
         reasons.append(
-            f"the gap before ({rms0 * 1e9:.0f} nm) is within {st.explainable_factor}× the noise "
-            f"floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
+            f"the gap before{wtag} ({wrms0 * 1e9:.0f} nm) is within {st.explainable_factor}× "
+            f"the noise floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
         )
     if gain <= floor_gain:
         ok = False
@@ -1035,8 +1116,9 @@ def _verdict(
         )
     if ok:
         reasons.append(
-            f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}), "
-            f"bootstrap p = {p:.3f}"
+            f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}"
+            + (f"; floor-weighted {wrms0 * 1e9:.0f} → {wrms1 * 1e9:.0f} nm" if weighted else "")
+            + f"), bootstrap p = {p:.3f}"
             + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
         )
     return CandidateResult(
@@ -1048,6 +1130,7 @@ def _verdict(
         command_ratio=command_ratio,
         validation_rms_m=rms1,
         shrink=shrink,
+        weighted_shrink=weighted_shrink,
         p_value=p,
         significant=ok,
         reasons=reasons,

@@ -418,6 +418,8 @@ def assemble_report(
         "gap_best_single": single,
         "best_single_effect": best_single.effect if best_single else None,
         "noise_floor_rms_m": floor,
+        "experiment_noise_floors_m": dict(out["experiment_floors_m"]),
+        "kind_floors": bool(out["kind_floors"]),
         "unexplained_rms_m": math.sqrt(max(total_after**2 - floor**2, 0.0)),
         "explained_fraction": _explained(before["total_rms_m"], total_after, floor),
         "forward_selection": [
