@@ -94,6 +94,9 @@ class DiagnosisSettings:
     #: region of (rise, time constant) covered a few per cent of the box.
     scan_points: int = 16
     scan_points_max: int = 48
+    #: Local fits when screening a friction-model candidate (`lugre`, `gms`, …): from the
+    #: warm start and from the scan's best point (others: the better of the two only).
+    screen_starts_friction_models: int = 2
     #: Points of the coarse scan over the free parameters before the first calibration.
     scan_points_nominal: int = 24
     seed: int = 0
@@ -699,6 +702,7 @@ class _Ctx:
         seed: int,
         screen: bool = False,
         scan_points: int | None = None,
+        screen_starts: int = 1,
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
@@ -728,7 +732,7 @@ class _Ctx:
             # also get the prior start.
             both = warm and (not screen or not params)
             f = prob.fit(
-                (max(n_starts, 2) if both else 1) if screen or warm else n_starts,
+                (max(n_starts, 2) if both else screen_starts) if screen or warm else n_starts,
                 self.st,
                 seed,
                 n_warm=len(free) if warm else 0,
@@ -1024,6 +1028,9 @@ def _judge(
             st.seed + index,
             screen,
             cand.scan_points,
+            # A friction-model candidate replaces the table friction, so its warm start is
+            # not the model before: screen it from the warm start and the scan's best.
+            st.screen_starts_friction_models if cand.name in FRICTION_MODELS else 1,
         )
         k_params = len(cand.params)
     return _verdict(
