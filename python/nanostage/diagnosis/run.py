@@ -59,8 +59,14 @@ DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
     frozenset({"asymmetric_friction", "offset_force"}): "micro-steps of a few counts and "
     "large steps, each in both directions: an offset force shifts the breakaway (static) "
     "and the sliding force by the same amount, asymmetric friction by amounts proportional "
-    "to the static and the Coulomb level; or a move with the loop open (a known command "
-    "pulse): an offset force larger than the static friction makes the axis drift",
+    "to the static and the Coulomb level. Where that difference, a·(Fs − Fc), is a few per "
+    "cent of the breakaway force (the seed axis), the position readings cannot resolve it "
+    "and the logged command adds nothing (the controller computes it from the readings): "
+    "measure the drive force directly, with the loop open, in both directions and "
+    "repeated: slow voltage ramps to breakaway and constant-speed slides. The + − "
+    "difference of the breakaway voltages equals that of the sliding voltages for an "
+    "offset force and exceeds it by Fs/Fc for asymmetric friction; an offset force larger "
+    "than the static friction makes the unpowered axis drift",
     frozenset({"backlash", "drive_compliance"}): "a slow reversal: backlash gives lost "
     "motion of a fixed width, a compliance a deflection proportional to the force",
     frozenset({"lead_periodic_friction", "position_random_friction"}): "the same move at "
