@@ -1090,9 +1090,6 @@ pub struct DrivePlant<const N: usize> {
     jump_error_rate: Option<f64>,
 }
 
-/// Error norm the first trial step after an input jump aims at (as `model::Plant`).
-const JUMP_FIRST_STEP_ERROR: f64 = 0.8;
-
 impl<const N: usize> DrivePlant<N>
 where
     Const<N>: DimMin<Const<N>, Output = Const<N>>,
@@ -1321,25 +1318,17 @@ where
                 inp: *inp,
                 modes: self.modes,
             };
-            let learn = at_jump && t == t0;
-            if learn {
-                if let Some(rate) = self.jump_error_rate {
-                    self.integrator
-                        .limit_next_step((JUMP_FIRST_STEP_ERROR / (rate * jump)).cbrt());
-                }
-            }
+            let after_jump = (at_jump && t == t0).then_some(jump);
             at_jump = false;
-            let end = self
-                .integrator
-                .integrate(&seg, t, t1, &mut self.y, &self.atol)?;
-            if learn {
-                if let Some((h, err)) = self.integrator.first_accepted() {
-                    let rate = err / (jump * h * h * h);
-                    if rate.is_finite() && rate > 0.0 {
-                        self.jump_error_rate = Some(rate);
-                    }
-                }
-            }
+            let end = self.integrator.integrate_after_jump(
+                &seg,
+                t,
+                t1,
+                &mut self.y,
+                &self.atol,
+                after_jump,
+                &mut self.jump_error_rate,
+            )?;
             match end {
                 SegmentEnd::Reached => return Ok(()),
                 SegmentEnd::Event { t_s } => {

@@ -19,7 +19,7 @@ mod rodas;
 pub use arrow::Arrow;
 pub use lu::Lu;
 
-pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats};
+pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats, JUMP_FIRST_STEP_ERROR};
 
 use nalgebra::{SMatrix, SVector};
 

@@ -154,6 +154,10 @@ impl<const N: usize> Factor<N> for Arrow<N> {
     }
 }
 
+/// Error norm the first trial step after an input jump aims at
+/// ([`Rodas4::integrate_after_jump`]).
+pub const JUMP_FIRST_STEP_ERROR: f64 = 0.8;
+
 /// The RODAS4 integrator. Keeps the last step size as a warm start and its work counters.
 #[derive(Debug, Clone)]
 pub struct Rodas4<const N: usize> {
@@ -300,6 +304,36 @@ where
                 state: y.iter().copied().collect(),
             }),
         }
+    }
+
+    /// [`Self::integrate`] for a plant whose held input may jump at `t0`. With `jump`
+    /// (the size of the input jump, for the first segment after it), the first trial step is
+    /// limited to the size whose error norm the rate learned after earlier jumps
+    /// (`error_rate`, per unit of jump · s³) predicts to be [`JUMP_FIRST_STEP_ERROR`], and the
+    /// rate is learned again from this call's first accepted step. Without `jump` it is
+    /// [`Self::integrate`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn integrate_after_jump<S: OdeSystem<N>>(
+        &mut self,
+        sys: &S,
+        t0: f64,
+        t1: f64,
+        y: &mut SVector<f64, N>,
+        atol: &SVector<f64, N>,
+        jump: Option<f64>,
+        error_rate: &mut Option<f64>,
+    ) -> Result<SegmentEnd, SimError> {
+        if let (Some(jump), Some(rate)) = (jump, *error_rate) {
+            self.limit_next_step((JUMP_FIRST_STEP_ERROR / (rate * jump)).cbrt());
+        }
+        let end = self.integrate(sys, t0, t1, y, atol)?;
+        if let (Some(jump), Some((h, err))) = (jump, self.first_accepted()) {
+            let rate = err / (jump * h * h * h);
+            if rate.is_finite() && rate > 0.0 {
+                *error_rate = Some(rate);
+            }
+        }
+        Ok(end)
     }
 
     /// Integrate from `t0` to `t1` (or to the first event), updating `y` in place.
