@@ -542,14 +542,28 @@ def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
     reference is at rest, raised to the spread of repeated experiments (the same reference
     at the same positions), if any. The spread of two repeats is measured with
     :func:`gap_residual`, as the gap is."""
-    var = _sensor_floor_var(experiments, count_m)
-    spreads = [v for _, v in _repeat_spreads(experiments, count_m)]
+    return _floors(experiments, count_m)[0]
+
+
+def _floors(experiments: Sequence[Experiment], count_m: float) -> tuple[float, dict[str, float]]:
+    """:func:`noise_floor_m` and :func:`experiment_floors_m` from one pass over the repeats."""
+    sensor = _sensor_floor_var(experiments, count_m)
+    spreads = _repeat_spreads(experiments, count_m)
+    var = sensor
     if spreads:
         # The mean over pairs, like the gap's mean over experiments: experiment types differ
         # in scatter (a chaotic breakaway test far more than a settled step), and a median
         # would report the quiet ones only.
-        var = max(var, float(np.mean(spreads)))
-    return math.sqrt(var)
+        var = max(var, float(np.mean([v for _, v in spreads])))
+    overall = math.sqrt(var)
+    by_kind: dict[tuple[int, ...], list[float]] = {}
+    for kind, v in spreads:
+        by_kind.setdefault(kind, []).append(v)
+    own = {}
+    for e in experiments:
+        vs = by_kind.get(experiment_kind(e.reference_m, count_m))
+        own[e.name] = math.sqrt(max(sensor, float(np.mean(vs)))) if vs else overall
+    return overall, own
 
 
 def experiment_floors_m(experiments: Sequence[Experiment], count_m: float) -> dict[str, float]:
@@ -561,16 +575,7 @@ def experiment_floors_m(experiments: Sequence[Experiment], count_m: float) -> di
     counts scatters by tens of nm, a 1 mm step or a reversal by hundreds), so one floor for
     all either hides an effect that shows in the quiet experiments only (a rising static
     friction in the breakaway tests) or lets noise in the loud ones pass for an effect."""
-    sensor = _sensor_floor_var(experiments, count_m)
-    overall = noise_floor_m(experiments, count_m)
-    by_kind: dict[tuple[int, ...], list[float]] = {}
-    for kind, v in _repeat_spreads(experiments, count_m):
-        by_kind.setdefault(kind, []).append(v)
-    out = {}
-    for e in experiments:
-        vs = by_kind.get(experiment_kind(e.reference_m, count_m))
-        out[e.name] = math.sqrt(max(sensor, float(np.mean(vs)))) if vs else overall
-    return out
+    return _floors(experiments, count_m)[1]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -782,8 +787,7 @@ def diagnose_experiments(
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
     every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
-    floor = noise_floor_m(list(every.values()), nominal.encoder.count_m)
-    floors = experiment_floors_m(list(every.values()), nominal.encoder.count_m)
+    floor, floors = _floors(list(every.values()), nominal.encoder.count_m)
     weights = {n: (floor / f) ** 2 for n, f in floors.items()} if st.kind_floors else {}
     with ThreadPoolExecutor(max_workers=workers) as pool:
         ctx = _Ctx(
