@@ -24,7 +24,9 @@ from nanostage.diagnosis.benchmark import (
     DESIGN,
     MID_COUNT_M,
     MOVE_S,
+    _hidden,
     design_reference,
+    truth_starts,
 )
 from nanostage.diagnosis.candidates import (
     CANDIDATES,
@@ -48,6 +50,7 @@ from nanostage.diagnosis.engine import (
     hold_intervals,
     move_units,
     noise_floor_m,
+    with_starts,
 )
 from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
 from nanostage.diagnosis.run import diagnose, indistinguishable, ties_of_selected
@@ -689,3 +692,63 @@ def test_friction_model_candidates_are_screened_from_two_starts() -> None:
     with pytest.raises(_Seen) as one:
         _judge(cands[0], base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=True)
     assert one.value.args[0] == 1
+
+
+@pytest.mark.parametrize(
+    "hidden",
+    [
+        "asymmetric_friction",
+        "dwell_static_friction",
+        "lead_periodic_friction",
+        "backlash",
+        "offset_force",
+    ],
+)
+def test_truth_starts_rebuild_the_hidden_effect(hidden: str) -> None:
+    """The truth-started check starts the candidate at values that rebuild the benchmark's
+    hidden effect: the same friction modifiers, position term (amplitude, wavenumber, phase),
+    dead band and contact stiffness, or offset force (backlash damping is the candidate's own
+    by design: not the inverse crime)."""
+    base = presets.seed(1e-3)
+    truth, info = _hidden(hidden, np.random.default_rng(7), base)
+    (cand,) = with_starts(applicable_candidates(base, [hidden])[0], truth_starts(hidden, info))
+    model = cand.apply(base, [p.initial for p in cand.params])
+    if hidden == "lead_periodic_friction":
+        ((a, k, ph),) = model.effects.position_friction[0].terms
+        ((a0, k0, ph0),) = truth.effects.position_friction[0].terms
+        assert (a, k) == pytest.approx((a0, k0), rel=1e-12)
+        assert np.cos(ph - ph0) == pytest.approx(1.0, abs=1e-12)
+        assert model.effects.position_friction[0].side == truth.effects.position_friction[0].side
+    elif hidden == "backlash":
+        b, b0 = model.effects.backlash, truth.effects.backlash
+        assert b is not None and b0 is not None
+        assert (b.width_m, b.contact_stiffness_n_per_m) == (
+            b0.width_m,
+            b0.contact_stiffness_n_per_m,
+        )
+    elif hidden == "offset_force":
+        assert get_path(model, "plant.table.external_force_n") == info["external_force_n"]
+    else:
+        assert model.effects.motor_friction == truth.effects.motor_friction
+
+
+def test_candidate_starts_are_clipped_and_checked_before_fitting(tmp_path: Path) -> None:
+    base = presets.seed(1e-3)
+    cands, _ = applicable_candidates(base, ["offset_force", "computation_delay"])
+    out = with_starts(cands, {"offset_force": {"external_force_n": 1e6}})
+    (p,) = out[0].params
+    assert p.initial == p.upper
+    assert out[1] is cands[1] or out[1] == cands[1]
+    with pytest.raises(
+        ValueError, match=r"unknown parameter\(s\) force_n; valid: external_force_n"
+    ):
+        with_starts(cands, {"offset_force": {"force_n": 1.0}})
+    m = _case(tmp_path, Effects(), seed=4)
+    for starts, msg in (
+        ({"offset_force": {"force_n": 1.0}}, "unknown parameter"),
+        ({"backlash": {"width_m": 1e-6}}, "'backlash', not among the candidates"),
+    ):
+        st = dc.replace(FAST, candidate_starts=starts)
+        # Raised before any fitting: the nominal calibration alone takes longer than this.
+        with pytest.raises(ValueError, match=msg):
+            diagnose(m, None, settings=st, progress=False)

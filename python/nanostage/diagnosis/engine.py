@@ -52,6 +52,7 @@ __all__ = [
     "experiment_floors_m",
     "experiment_kind",
     "noise_floor_m",
+    "with_starts",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -99,8 +100,39 @@ class DiagnosisSettings:
     screen_starts_friction_models: int = 2
     #: Points of the coarse scan over the free parameters before the first calibration.
     scan_points_nominal: int = 24
+    #: Start values of candidates' own parameters, by candidate name and parameter name
+    #: (replacing each :class:`Param`'s ``initial``): prior knowledge of an effect, or the
+    #: benchmark's truth-started check (is the hidden effect detectable at all?).
+    candidate_starts: Mapping[str, Mapping[str, float]] | None = None
     seed: int = 0
     workers: int = 0  #: 0: one per CPU
+
+
+def with_starts(
+    cands: Sequence[Candidate], starts: Mapping[str, Mapping[str, float]] | None
+) -> list[Candidate]:
+    """``cands`` with the start values ``starts[name][param]`` as their parameters' initial
+    values (clipped to the bounds). An unknown parameter name raises ``ValueError``."""
+    if not starts:
+        return list(cands)
+    out = []
+    for c in cands:
+        given = starts.get(c.name, {})
+        names = [p.name for p in c.params]
+        unknown = sorted(set(given) - set(names))
+        if unknown:
+            raise ValueError(
+                f"candidate_starts[{c.name!r}]: unknown parameter(s) {', '.join(unknown)}; "
+                f"valid: {', '.join(names) or 'none (a discrete candidate)'}"
+            )
+        params = tuple(
+            dataclasses.replace(p, initial=min(max(float(given[p.name]), p.lower), p.upper))
+            if p.name in given
+            else p
+            for p in c.params
+        )
+        out.append(dataclasses.replace(c, params=params))
+    return out
 
 
 def _progress(msg: str, enabled: bool) -> None:
@@ -789,6 +821,15 @@ def diagnose_experiments(
     every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
     floor, floors = _floors(list(every.values()), nominal.encoder.count_m)
     weights = {n: (floor / f) ** 2 for n, f in floors.items()} if st.kind_floors else {}
+    # Candidate names and start values are checked before any fitting.
+    cands, skipped = applicable_candidates(nominal, candidates)
+    cands = with_starts(cands, st.candidate_starts)
+    unknown = sorted(set(st.candidate_starts or {}) - {c.name for c in cands})
+    if unknown:
+        raise ValueError(
+            f"candidate_starts names {', '.join(map(repr, unknown))}, not among the "
+            f"candidates of this diagnosis ({', '.join(c.name for c in cands)})"
+        )
     with ThreadPoolExecutor(max_workers=workers) as pool:
         ctx = _Ctx(
             free=free,
@@ -818,11 +859,11 @@ def diagnose_experiments(
         current_ms = base_ms
         current_cmd = base_cmd
         current_units: FloatArray | None = base_units
-        cands, skipped = applicable_candidates(nominal, candidates)
         pool_names = [c.name for c in cands]
         for rnd in range(st.forward_rounds):
             names = pool_names if rnd == 0 else pool_names[: st.forward_top]
             cand_now, _ = applicable_candidates(current, [n for n in names if n not in selected])
+            cand_now = with_starts(cand_now, st.candidate_starts)
             if any(n in FRICTION_MODELS for n in selected):
                 cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
             results: list[CandidateResult] = []
