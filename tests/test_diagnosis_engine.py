@@ -674,19 +674,31 @@ def test_friction_model_candidates_are_screened_from_two_starts() -> None:
     base = presets.seed(1e-3)
 
     def fit_and_validate(*args: Any, **kwargs: Any) -> Any:
-        raise _Seen(args[-1])
+        # (…, screen_starts, scan_starts)
+        raise _Seen(args[-2], args[-1])
 
     class _Seen(Exception):
         pass
 
     ctx = SimpleNamespace(st=DiagnosisSettings(), fit_and_validate=fit_and_validate)
-    cands, _ = applicable_candidates(base, ["gms", "lugre", "offset_force", "backlash"])
+    cands, _ = applicable_candidates(
+        base, ["gms", "lugre", "offset_force", "backlash", "dwell_static_friction"]
+    )
+    scan: dict[str, int] = {}
     for cand in cands:
         try:
             _judge(cand, base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=True)
         except _Seen as s:
-            seen[cand.name] = s.args[0]
-    assert seen == {"gms": 2, "lugre": 2, "offset_force": 1, "backlash": 1}
+            seen[cand.name], scan[cand.name] = s.args
+    assert seen == {
+        "gms": 2,
+        "lugre": 2,
+        "offset_force": 1,
+        "backlash": 1,
+        "dwell_static_friction": 1,
+    }
+    # The dwell gap's basin is narrow: local fits from the three best scanned points.
+    assert scan == {k: 3 if k == "dwell_static_friction" else 1 for k in seen}
     st = DiagnosisSettings(screen_starts_friction_models=1)
     ctx = SimpleNamespace(st=st, fit_and_validate=fit_and_validate)
     with pytest.raises(_Seen) as one:
@@ -752,3 +764,57 @@ def test_candidate_starts_are_clipped_and_checked_before_fitting(tmp_path: Path)
         # Raised before any fitting: the nominal calibration alone takes longer than this.
         with pytest.raises(ValueError, match=msg):
             diagnose(m, None, settings=st, progress=False)
+
+
+def test_scan_starts_fit_from_the_next_best_scanned_points(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With ``scan_starts`` = 3 the local fits start from the warm start and the three best
+    scanned points that beat it (best first); with 1, from the best only. The gap here is a
+    synthetic bowl (no simulation), so the scan's costs are known exactly."""
+    import nanostage.diagnosis.engine as eng
+
+    seed_system = presets.seed(1e-3)
+    target = np.array([1.2, 1.7])
+
+    class Bowl(FitProblem):
+        def _vector(self, u: np.ndarray) -> np.ndarray:
+            self.n_evaluations += 1
+            return np.asarray(u, dtype=float) - target
+
+    params = [
+        ("a", Param(name="a", unit="-", lower=0.0, upper=1.0, initial=0.9)),
+        ("b", Param(name="b", unit="-", lower=0.0, upper=1.0, initial=0.1)),
+    ]
+    x0s: list[np.ndarray] = []
+    real = eng.least_squares
+
+    def recording(fun: Any, x0: np.ndarray, **kw: Any) -> Any:
+        x0s.append(np.array(x0))
+        return real(fun, x0, **kw)
+
+    monkeypatch.setattr(eng, "least_squares", recording)
+    st = DiagnosisSettings()
+    with ThreadPoolExecutor(1) as pool:
+        for k in (1, 3):
+            x0s.clear()
+            prob = Bowl(
+                params, lambda v: seed_system, [cast(Experiment, None)], pool, lambda s, e: s
+            )
+            fit = prob.fit(2, st, seed=5, scan=32, scan_starts=k)
+            assert fit.values["a"] == pytest.approx(0.2, abs=1e-3)
+            # The scanned points, as fit() draws them, ranked by their cost.
+            rows = 1.0 + qmc_rows(32, seed=5 + 7919)
+            cost = np.sum((rows - target) ** 2, axis=1)
+            warm = np.array([1.9, 1.1])
+            better = [rows[i] for i in np.argsort(cost) if cost[i] < np.sum((warm - target) ** 2)]
+            assert np.allclose(x0s[0], warm)
+            assert len(x0s) == 1 + min(k, len(better))
+            for got, want in zip(x0s[1:], better, strict=False):
+                assert np.allclose(got, want)
+
+
+def qmc_rows(n: int, seed: int) -> np.ndarray:
+    from scipy.stats import qmc
+
+    return np.asarray(qmc.LatinHypercube(d=2, seed=seed).random(n))

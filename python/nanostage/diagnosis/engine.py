@@ -221,6 +221,7 @@ class FitProblem:
         n_warm: int = 0,
         prior: Sequence[float] | None = None,
         scan: int = 0,
+        scan_starts: int = 1,
     ) -> Fit:
         """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates. The
         first start is every parameter's ``initial``; with ``prior`` (physical values, e.g.
@@ -230,7 +231,8 @@ class FitProblem:
         ``scan`` Latin-hypercube points of the drawn parameters (all of them without warm
         ones), and the
         best of them (if better than the warm start) is fitted first: instead of the warm
-        start when only one start is allowed, else right after it."""
+        start when only one start is allowed, else right after it. ``scan_starts`` > 1 adds
+        the next best scanned points (better than the warm start) as further starts."""
         k = len(self.params)
         self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
         if k == 0:
@@ -270,6 +272,13 @@ class FitProblem:
                     starts[0] = cands[j - 1]
                 else:
                     starts.insert(1, cands[j - 1])
+            # Further starts from the next best scanned points that beat the warm start.
+            more = [int(i) for i in np.argsort(costs, kind="stable") if i != j]
+            more = [i for i in more if i > 0 and costs[i] < costs[0]][: max(scan_starts - 1, 0)]
+            at = 1 if n_starts <= 1 else 2 if j > 0 else 1
+            for m, i in enumerate(more):
+                starts.insert(at + m, cands[i - 1])
+            n_starts += len(more)
         if n_starts > len(starts):
             lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - len(starts))
             for row in lhs:
@@ -740,6 +749,7 @@ class _Ctx:
         screen: bool = False,
         scan_points: int | None = None,
         screen_starts: int = 1,
+        scan_starts: int = 1,
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
@@ -782,6 +792,7 @@ class _Ctx:
                 )
                 if params
                 else (0 if warm else self.st.scan_points_nominal),
+                scan_starts=scan_starts,
             )
             res = prob.residuals(f.system, validate)
             fits.append(f)
@@ -1076,6 +1087,7 @@ def _judge(
             # A friction-model candidate replaces the table friction, so its warm start is
             # not the model before: screen it from the warm start and the scan's best.
             st.screen_starts_friction_models if cand.name in FRICTION_MODELS else 1,
+            cand.scan_starts,
         )
         k_params = len(cand.params)
     return _verdict(
