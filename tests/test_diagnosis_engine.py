@@ -697,8 +697,8 @@ def test_friction_model_candidates_are_screened_from_two_starts() -> None:
         "backlash": 1,
         "dwell_static_friction": 1,
     }
-    # The dwell gap's basin is narrow: local fits from the three best scanned points.
-    assert scan == {k: 3 if k == "dwell_static_friction" else 1 for k in seen}
+    # The dwell gap's basin is narrow: local fits from the four best scanned points.
+    assert scan == {k: 4 if k == "dwell_static_friction" else 1 for k in seen}
     st = DiagnosisSettings(screen_starts_friction_models=1)
     ctx = SimpleNamespace(st=st, fit_and_validate=fit_and_validate)
     with pytest.raises(_Seen) as one:
