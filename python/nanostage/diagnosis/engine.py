@@ -266,19 +266,18 @@ class FitProblem:
                 u[k - n_draw :] = 1.0 + row
                 cands.append(u)
             costs = [float(np.sum(self._vector(u) ** 2)) for u in [first, *cands]]
-            j = int(np.argmin(costs))
-            if j > 0:
+            # The best `scan_starts` scanned points that beat the warm start, best first.
+            best_scanned = [
+                cands[i - 1]
+                for i in np.argsort(costs, kind="stable")
+                if i > 0 and costs[i] < costs[0]
+            ][: max(scan_starts, 1)]
+            if best_scanned:
                 if n_starts <= 1:
-                    starts[0] = cands[j - 1]
+                    starts[0:1] = best_scanned  # instead of the warm start
                 else:
-                    starts.insert(1, cands[j - 1])
-            # Further starts from the next best scanned points that beat the warm start.
-            more = [int(i) for i in np.argsort(costs, kind="stable") if i != j]
-            more = [i for i in more if i > 0 and costs[i] < costs[0]][: max(scan_starts - 1, 0)]
-            at = 1 if n_starts <= 1 else 2 if j > 0 else 1
-            for m, i in enumerate(more):
-                starts.insert(at + m, cands[i - 1])
-            n_starts += len(more)
+                    starts[1:1] = best_scanned  # right after it
+                n_starts += len(best_scanned) - 1
         if n_starts > len(starts):
             lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - len(starts))
             for row in lhs:
