@@ -26,6 +26,8 @@ from nanostage.diagnosis.benchmark import (
     MOVE_S,
     _hidden,
     design_reference,
+    draw_truth,
+    oracle_model,
     truth_starts,
 )
 from nanostage.diagnosis.candidates import (
@@ -33,6 +35,7 @@ from nanostage.diagnosis.candidates import (
     NOT_CANDIDATES,
     Param,
     applicable_candidates,
+    gms_spread,
     motor_static_force_n,
 )
 from nanostage.diagnosis.engine import (
@@ -53,7 +56,7 @@ from nanostage.diagnosis.engine import (
     with_starts,
 )
 from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
-from nanostage.diagnosis.run import diagnose, indistinguishable, ties_of_selected
+from nanostage.diagnosis.run import diagnose, indistinguishable, model_gap, ties_of_selected
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effect_names import EFFECT_NAMES
 from nanostage.effects import (
@@ -457,6 +460,13 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     assert best["shrink"] > 0.5
     assert abs(best["parameters"]["asymmetric_friction.asymmetry"]["value"] - 0.3) < 0.08
     assert r["gap_after"]["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
+    # The gap of a given model, nothing fitted, is the report's measure: the selected model
+    # (one fold) gives gap_after exactly; the truth itself leaves only the noise.
+    assert model_gap(m, d.model)["total_rms_m"] == r["gap_after"]["total_rms_m"]
+    truth = dc.replace(
+        ns.presets.seed(1e-3), effects=Effects(motor_friction=FrictionModifiers(asymmetry=0.3))
+    )
+    assert model_gap(m, truth)["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
     on_disk = json.loads((tmp_path / "out" / "report.json").read_text())
     for key in ("gap_before", "candidates", "selected", "gap_after"):
         assert key in on_disk
@@ -742,6 +752,41 @@ def test_truth_starts_rebuild_the_hidden_effect(hidden: str) -> None:
         assert get_path(model, "plant.table.external_force_n") == info["external_force_n"]
     else:
         assert model.effects.motor_friction == truth.effects.motor_friction
+
+
+@pytest.mark.parametrize("spread", [1.0, 4.0, 100.0])
+def test_gms_candidate_spreads_its_slip_displacements(spread: float) -> None:
+    """The GMS candidate's elements: equal weights, stiffnesses summing to the presliding
+    stiffness at the origin, slip displacements (weight·Fc/k) in geometric steps from the
+    first to `spread` times it."""
+    g = gms_spread(30.0, 40.0, 7.5e7, 5e-4, spread)
+    assert sum(g.stiffness_n_per_m) == pytest.approx(7.5e7, rel=1e-12)
+    assert g.weights == pytest.approx((1 / 3, 1 / 3, 1 / 3))
+    slip = [w * g.coulomb_force_n / k for w, k in zip(g.weights, g.stiffness_n_per_m, strict=True)]
+    assert slip[2] / slip[0] == pytest.approx(spread, rel=1e-12)
+    assert slip[1] / slip[0] == pytest.approx(np.sqrt(spread), rel=1e-12)
+    (cand,) = applicable_candidates(presets.seed(1e-3), ["gms"])[0]
+    assert cand.params[-1].name == "presliding_spread"
+    model = cand.apply(presets.seed(1e-3), [30.0, 10.0, 7.5e7, 5e-4, spread])
+    assert model.effects.table_friction == g
+    with pytest.raises(ValueError, match=r"presliding_spread = 0\.5"):
+        gms_spread(30.0, 40.0, 7.5e7, 5e-4, 0.5)
+
+
+@pytest.mark.parametrize("hidden", ["presliding_gms", "offset_force"])
+def test_oracle_model_is_the_truth_without_its_noise(hidden: str) -> None:
+    """The benchmark's ceiling model: the drawn truth (same hidden effect, same perturbed
+    friction levels) without stochastic friction and encoder noise, at the nominal
+    integrator tolerance; the same seed draws the same truth."""
+    truth, info, _ = draw_truth(hidden, 12345)
+    oracle = oracle_model(hidden, 12345)
+    assert truth.effects.stochastic is not None and truth.effects.encoder_errors is not None
+    assert oracle.effects.stochastic is None and oracle.effects.encoder_errors is None
+    assert oracle.integrator == presets.seed(1e-3).integrator != truth.integrator
+    assert oracle.plant == truth.plant
+    assert oracle.effects.table_friction == truth.effects.table_friction
+    assert info["parameters"] == draw_truth(hidden, 12345)[1]["parameters"]
+    assert info["parameters"] != draw_truth(hidden, 12346)[1]["parameters"]
 
 
 def test_candidate_starts_are_clipped_and_checked_before_fitting(tmp_path: Path) -> None:

@@ -48,7 +48,7 @@ from ..simulate import simulate
 from .candidates import motor_static_force_n
 from .engine import DiagnosisSettings
 from .manifest import load_manifest
-from .run import diagnose
+from .run import diagnose, model_gap
 from .traces import write_trace_csv
 
 __all__ = [
@@ -56,8 +56,11 @@ __all__ = [
     "HIDDEN_EFFECTS",
     "SPEED_DESIGN",
     "design_reference",
+    "draw_truth",
     "generate_case",
+    "oracle_model",
     "run_benchmark",
+    "truth_starts",
 ]
 
 #: Hidden effects drawn by the benchmark ("none": the nominal structure is right).
@@ -282,18 +285,13 @@ def design_reference(
     return np.concatenate(parts)
 
 
-def generate_case(
-    hidden: str,
-    seed: int,
-    out_dir: Path,
-    *,
-    level_spread: float = 0.005,
-    design: Sequence[Design] = DESIGN,
-) -> tuple[Path, dict[str, Any]]:
-    """Write one case's traces and manifest into ``out_dir``; returns the manifest path and
-    the truth (hidden effect, its parameters, the perturbed nominal values). ``design``: the
-    experiments (default `DESIGN`; ``benches/diagnosis_speed.py`` times a 10-experiment
-    subset, `SPEED_DESIGN`)."""
+def draw_truth(
+    hidden: str, seed: int, *, level_spread: float = 0.005
+) -> tuple[System, dict[str, Any], np.random.Generator]:
+    """A case's truth model (the seed axis with its friction levels perturbed, the hidden
+    effect, stochastic friction, encoder noise and a fine integrator tolerance), what was
+    drawn, and the random generator after those draws (the experiments' start positions
+    come next)."""
     rng = np.random.default_rng(seed)
     base = presets.seed(1e-3)
     p = base.plant
@@ -320,6 +318,26 @@ def generate_case(
         ),
     )
     truth, info = _hidden(hidden, rng, truth)
+    info = {"parameters": info, "dahl_coulomb_force_n": fc, "motor_friction_scale": scale}
+    return truth, info, rng
+
+
+def generate_case(
+    hidden: str,
+    seed: int,
+    out_dir: Path,
+    *,
+    level_spread: float = 0.005,
+    design: Sequence[Design] = DESIGN,
+) -> tuple[Path, dict[str, Any]]:
+    """Write one case's traces and manifest into ``out_dir``; returns the manifest path and
+    the truth (hidden effect, its parameters, the perturbed nominal values). ``design``: the
+    experiments (default `DESIGN`; ``benches/diagnosis_speed.py`` times a 10-experiment
+    subset, `SPEED_DESIGN`)."""
+    truth, info, rng = draw_truth(hidden, seed, level_spread=level_spread)
+    p = presets.seed(1e-3).plant
+    assert isinstance(p, Plant)
+    mf = p.motor_friction
     out_dir.mkdir(parents=True, exist_ok=True)
     fc0 = p.dahl.coulomb_force_n
     # The uncertain friction levels are free: the Dahl level and the motor map's static and
@@ -368,13 +386,7 @@ def generate_case(
         ]
     manifest = out_dir / "manifest.toml"
     manifest.write_text("\n".join(lines))
-    truth_info = {
-        "hidden": hidden,
-        "parameters": info,
-        "dahl_coulomb_force_n": fc,
-        "motor_friction_scale": scale,
-        "seed": seed,
-    }
+    truth_info = {"hidden": hidden, **info, "seed": seed}
     (out_dir / "truth.json").write_text(json.dumps(truth_info, indent=1))
     return manifest, truth_info
 
@@ -407,6 +419,18 @@ def _truth_check(
         "shrink": best["shrink"] if best else 0.0,
         "seconds": time.perf_counter() - t,
     }
+
+
+def oracle_model(hidden: str, seed: int, *, level_spread: float = 0.005) -> System:
+    """The deterministic part of a case's truth (:func:`draw_truth` without its stochastic
+    friction and encoder noise, at the nominal model's integrator tolerance): the model no
+    candidate can beat but by fitting noise."""
+    truth, _, _ = draw_truth(hidden, seed, level_spread=level_spread)
+    return dc.replace(
+        truth,
+        integrator=presets.seed(1e-3).integrator,
+        effects=dc.replace(truth.effects, stochastic=None, encoder_errors=None),
+    )
 
 
 def _check_cell(row: dict[str, Any]) -> str:
@@ -465,6 +489,12 @@ def run_benchmark(
         after = rep["gap_after"]["total_rms_m"]
         floor = rep["noise_floor_rms_m"]
         shrink = 1.0 - after / before if before > 0 else 0.0
+        # The shrink the truth's own deterministic model gives: what the data allow.
+        oracle = (
+            model_gap(manifest, oracle_model(h, seed * 10_000 + c))["total_rms_m"]
+            if h != "none"
+            else None
+        )
         rows.append(
             {
                 "case": c,
@@ -478,6 +508,8 @@ def run_benchmark(
                 "gap_after_rms_m": after,
                 "noise_floor_rms_m": floor,
                 "shrink": shrink,
+                "oracle_rms_m": oracle,
+                "oracle_shrink": None if oracle is None or before <= 0 else 1.0 - oracle / before,
                 "explained_fraction": rep["explained_fraction"],
                 "seconds": seconds,
                 "truth": truth["parameters"],
@@ -489,6 +521,7 @@ def run_benchmark(
                 f"case {c + 1}/{cases} hidden {h:24s} found {found:24s} "
                 f"{'ok ' if ok else 'MISS'} gap {before * 1e9:7.0f} → {after * 1e9:7.0f} nm "
                 f"({shrink:+.0%})  {seconds:.0f} s"
+                + ("" if oracle is None else f"  [truth's model: {1.0 - oracle / before:+.0%}]")
                 + (
                     ""
                     if check is None
@@ -518,6 +551,9 @@ def run_benchmark(
         "median_explained_fraction": float(np.median([r["explained_fraction"] or 0.0 for r in eff]))
         if eff
         else math.nan,
+        "median_oracle_shrink": float(np.median([r["oracle_shrink"] for r in eff]))
+        if eff
+        else math.nan,
         "median_seconds_per_case": float(np.median([r["seconds"] for r in rows])),
         "detectable_cases": len(detectable) if truth_check else None,
         "top1_detectable": float(np.mean([r["correct"] for r in detectable]))
@@ -539,6 +575,11 @@ def run_benchmark(
         f"(of the gap above the noise floor: {summary['median_explained_fraction']:.0%}), "
         f"median {summary['median_seconds_per_case']:.0f} s per case.",
         "",
+        f"Shrink of the truth's own deterministic model (the hidden effect at its true "
+        f"values, no noise; nothing fitted): median {summary['median_oracle_shrink']:.0%}. "
+        "No model can remove more of the gap than that but by fitting noise: it is what "
+        "the drawn cases allow.",
+        "",
         *(
             []
             if summary["detectable_cases"] is None
@@ -559,16 +600,18 @@ def run_benchmark(
     md += [
         "",
         "| case | hidden | found | tied with | selected | gap before [nm] | after [nm] | "
-        "floor [nm] | shrink | explained | time [s] | truth-started check |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "floor [nm] | shrink | truth's shrink | explained | time [s] | truth-started check |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ex = r["explained_fraction"]
+        oc = r["oracle_shrink"]
         md.append(
             f"| {r['case']} | {r['hidden']} | {r['found']} | {', '.join(r['tied_with']) or '—'} "
             f"| {', '.join(r['selected']) or '—'} "
             f"| {r['gap_before_rms_m'] * 1e9:.0f} | {r['gap_after_rms_m'] * 1e9:.0f} "
             f"| {r['noise_floor_rms_m'] * 1e9:.0f} | {r['shrink']:.0%} "
+            f"| {'—' if oc is None else f'{oc:.0%}'} "
             f"| {'—' if ex is None else f'{ex:.0%}'} | {r['seconds']:.0f} | {_check_cell(r)} |"
         )
     (out / "benchmark.md").write_text("\n".join(md) + "\n")

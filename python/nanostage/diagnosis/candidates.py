@@ -316,10 +316,23 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
     def gms(sys: System) -> Candidate | str:
         return Candidate(
             name="gms",
-            params=_presliding_params(sys),
-            apply=lambda s, v: _fx(s, table_friction=gms3(v[0], v[0] + v[1], v[2], v[3])),
+            params=(
+                *_presliding_params(sys),
+                Param(
+                    name="presliding_spread",
+                    unit="-",
+                    lower=1.0,
+                    upper=1000.0,
+                    initial=GMS_SPREAD_INITIAL,
+                    log=True,
+                ),
+            ),
+            apply=lambda s, v: _fx(
+                s, table_friction=gms_spread(v[0], v[0] + v[1], v[2], v[3], v[4])
+            ),
             signature="Maxwell-slip presliding with non-local memory: hysteresis that depends "
-            "on the reversal history, plus a Stribeck curve",
+            "on the reversal history, a presliding curve that bends over a range of "
+            "displacements, plus a Stribeck curve",
         )
 
     def asymmetric(sys: System) -> Candidate | str:
@@ -689,14 +702,33 @@ def _dahl(s: System, v: Sequence[float]) -> System:
     raise ValueError("Dahl as the table friction of a force drive is not supported")
 
 
-def gms3(coulomb_force_n: float, static_force_n: float, stiffness_n_per_m: float, vs: float) -> Gms:
-    """A 3-element GMS with fixed shape (weights 0.5/0.3/0.2, stiffness ratios 1 : 0.3 : 0.1
-    of the total ``stiffness_n_per_m``)."""
-    ratios = (1.0, 0.3, 0.1)
-    total = sum(ratios)
+#: Initial spread of the GMS candidate's element slip displacements (about the spread of the
+#: fixed 0.5/0.3/0.2-weight shape it replaced).
+GMS_SPREAD_INITIAL = 4.0
+
+
+def gms_spread(
+    coulomb_force_n: float,
+    static_force_n: float,
+    stiffness_n_per_m: float,
+    vs: float,
+    spread: float,
+    n: int = 3,
+) -> Gms:
+    """An ``n``-element GMS of equal weights whose elements start to slip (at the Coulomb
+    level) after displacements spread geometrically over the factor ``spread`` (element
+    ``i`` at ``spread^(i/(n−1))`` times the first's): the total presliding stiffness
+    ``stiffness_n_per_m`` at the origin, a presliding curve that bends over the range of
+    displacements ``spread`` sets (1: one element's sharp corner; 100: a gradual curve)."""
+    if not (spread >= 1.0 and math.isfinite(spread)):
+        raise ValueError(f"presliding_spread = {spread} is invalid: expected a factor ≥ 1")
+    if n < 2:
+        raise ValueError(f"n = {n} is invalid: expected at least 2 elements")
+    compliance = [spread ** (i / (n - 1)) for i in range(n)]  # element i: k_i ∝ 1/that
+    total = sum(1.0 / c for c in compliance)
     return Gms(
-        stiffness_n_per_m=tuple(stiffness_n_per_m * r / total for r in ratios),
-        weights=(0.5, 0.3, 0.2),
+        stiffness_n_per_m=tuple(stiffness_n_per_m / (c * total) for c in compliance),
+        weights=tuple([1.0 / n] * n),
         coulomb_force_n=coulomb_force_n,
         static_force_n=static_force_n,
         stribeck_velocity_m_per_s=vs,

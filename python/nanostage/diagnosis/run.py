@@ -22,7 +22,7 @@ from it), ``gap_best_single``, ``noise_floor_rms_m``, ``forward_selection``, ``e
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,6 +51,7 @@ __all__ = [
     "diagnose",
     "experiment_advice",
     "indistinguishable",
+    "model_gap",
     "ties_of_selected",
 ]
 
@@ -244,22 +245,27 @@ def _lead(system: System) -> float | None:
     return float(screw.lead_m) if screw is not None else None
 
 
-def diagnose(
-    manifest: str | Path | Manifest,
-    out_dir: str | Path | None = None,
-    *,
-    settings: DiagnosisSettings | None = None,
-    progress: bool = True,
-    figures: bool = True,
-) -> Diagnosis:
-    """Diagnose the gap between a nominal model and measured experiments (see the module
-    docstring for the report). All input errors are raised before any fitting."""
+@dataclass(frozen=True, slots=True)
+class _Setup:
+    """What the manifest gives the engine: the nominal model, its free parameters, the
+    folds, and how a model is set up for one experiment (its controller) and for values of
+    the free parameters."""
+
+    manifest: Manifest
+    nominal: System
+    free: list[tuple[str, Param]]
+    folds: list[tuple[list[Experiment], list[Experiment]]]
+    adapt: Callable[[System, Experiment], System]
+    set_free: Callable[[System, Mapping[str, float]], System]
+
+
+def _setup(manifest: str | Path | Manifest) -> _Setup:
+    """Load and check the manifest and its traces (every input error is raised here)."""
     m = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
     pairs = m.experiments()
     by_name = {spec.name: exp for spec, exp in pairs}
     specs = {spec.name: spec for spec, _ in pairs}
     nominal = m.system()
-    st = settings or DiagnosisSettings(seed=m.diagnosis.seed)
     for name, e in by_name.items():
         t = nominal.sample_period_s
         if abs(e.sample_period_s - t) > 1e-3 * t:
@@ -312,12 +318,29 @@ def diagnose(
         return out
 
     folds = [([by_name[n] for n in f.train], [by_name[n] for n in f.validate]) for f in m.splits()]
+    return _Setup(m, nominal, free, folds, adapt, set_free)
+
+
+def diagnose(
+    manifest: str | Path | Manifest,
+    out_dir: str | Path | None = None,
+    *,
+    settings: DiagnosisSettings | None = None,
+    progress: bool = True,
+    figures: bool = True,
+) -> Diagnosis:
+    """Diagnose the gap between a nominal model and measured experiments (see the module
+    docstring for the report). All input errors are raised before any fitting."""
+    setup = _setup(manifest)
+    m, nominal, free, folds = setup.manifest, setup.nominal, setup.free, setup.folds
+    adapt = setup.adapt
+    st = settings or DiagnosisSettings(seed=m.diagnosis.seed)
     names = [c for c in m.diagnosis.candidates if c in CANDIDATES]
     cands, _ = applicable_candidates(nominal, names)
     out = diagnose_experiments(
         nominal,
         free,
-        set_free,
+        setup.set_free,
         folds,
         adapt=adapt,
         candidates=names,
@@ -372,19 +395,32 @@ def _validation_order(
 
 
 def _simulated(
-    fits: Sequence[Fit],
+    fits: Sequence[Fit | System],
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
     adapt: Any,
 ) -> list[np.ndarray]:
-    """Simulated mean readings of the validation experiments, hold windows rank-aligned to
-    the measurement (so that measured − simulated is the engine's gap residual)."""
+    """Simulated mean readings of the validation experiments (each fold's by its fit's
+    system, or the given system), hold windows rank-aligned to the measurement (so that
+    measured − simulated is the engine's gap residual)."""
     out = []
     for f, (_, v) in zip(fits, folds, strict=True):
+        system = f.system if isinstance(f, Fit) else f
         out += [
-            align_holds(e.position_m, simulated_mean_reading(adapt(f.system, e), e), e.reference_m)
+            align_holds(e.position_m, simulated_mean_reading(adapt(system, e), e), e.reference_m)
             for e in v
         ]
     return out
+
+
+def model_gap(manifest: str | Path | Manifest, system: System) -> dict[str, Any]:
+    """The validation gap of a given model, nothing fitted: the measure of the report's
+    ``gap_before`` and ``gap_after`` (the same validation experiments, each with its
+    manifest controller, the same hold alignment), e.g. to judge a model from elsewhere on
+    the data. Returns the same form (``total_rms_m``, ``by_segment``, the full analysis)."""
+    setup = _setup(manifest)
+    val = _validation_order(setup.folds)
+    sims = _simulated([system] * len(setup.folds), setup.folds, setup.adapt)
+    return _gap(val, sims, _lead(setup.nominal))
 
 
 def assemble_report(
