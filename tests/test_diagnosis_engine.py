@@ -28,6 +28,7 @@ from nanostage.diagnosis.benchmark import (
     design_reference,
     draw_truth,
     oracle_model,
+    run_benchmark,
     truth_starts,
 )
 from nanostage.diagnosis.candidates import (
@@ -863,3 +864,28 @@ def qmc_rows(n: int, seed: int) -> np.ndarray:
     from scipy.stats import qmc
 
     return np.asarray(qmc.LatinHypercube(d=2, seed=seed).random(n))
+
+
+def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) -> None:
+    """One blind case end to end (a hidden offset force, the full design, fast settings):
+    the row and the summary carry the shrink of the truth's deterministic model, which for a
+    large effect removes nearly all the gap, and the files are written."""
+    s = run_benchmark(
+        tmp_path,
+        cases=1,
+        seed=3,
+        hidden=["offset_force"],
+        settings=dc.replace(FAST, forward_rounds=1),
+        progress=False,
+        truth_check=False,
+    )
+    (row,) = s["rows"]
+    assert row["hidden"] == "offset_force"
+    assert row["oracle_rms_m"] < 0.2 * row["gap_before_rms_m"]
+    assert row["oracle_shrink"] == pytest.approx(1 - row["oracle_rms_m"] / row["gap_before_rms_m"])
+    assert s["median_oracle_shrink"] == row["oracle_shrink"]
+    assert (
+        json.loads((tmp_path / "benchmark.json").read_text())["median_oracle_shrink"]
+        == (row["oracle_shrink"])
+    )
+    assert "truth's shrink" in (tmp_path / "benchmark.md").read_text()

@@ -571,12 +571,12 @@ def run_benchmark(
         f"{cases} cases, seed {seed}. Top-1 {summary['top1']:.0%} (counting a truth the "
         f"report names as indistinguishable from the first selection: "
         f"{summary['top1_up_to_ties']:.0%}), false alarms "
-        f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.0%} "
+        f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.1%} "
         f"(of the gap above the noise floor: {summary['median_explained_fraction']:.0%}), "
         f"median {summary['median_seconds_per_case']:.0f} s per case.",
         "",
         f"Shrink of the truth's own deterministic model (the hidden effect at its true "
-        f"values, no noise; nothing fitted): median {summary['median_oracle_shrink']:.0%}. "
+        f"values, no noise; nothing fitted): median {summary['median_oracle_shrink']:.1%}. "
         "No model can remove more of the gap than that but by fitting noise: it is what "
         "the drawn cases allow.",
         "",
