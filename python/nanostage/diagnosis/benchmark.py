@@ -16,7 +16,9 @@ model of the FPGA timing), but the truth adds noise, quantisation and scatter.
 
 Scores: top-1 identification over the cases with an effect, the false-alarm rate over the
 no-effect cases, the median validation-gap shrink of the selected model over the cases
-with an effect, and a confusion matrix (hidden → first selected).
+with an effect, and a confusion matrix (hidden → first selected). Beside them, per case:
+the shrink of the truth's own deterministic model (:func:`oracle_model`, nothing fitted:
+what the drawn data allow) and the truth-started check (is the effect detectable at all).
 """
 
 from __future__ import annotations
