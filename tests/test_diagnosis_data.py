@@ -839,3 +839,43 @@ def test_markdown_without_after_and_with_iso() -> None:
     md = markdown_report({"gap_before": gap, "candidates": []})
     assert "RMS after" not in md and "No candidates." in md
     assert "## ISO 230-2 (final hold positions)" in md and "| R↑ |" in md
+
+
+def test_replace_paths_rebuilds_each_level_once_and_checks_every_path() -> None:
+    """Several paths in one group and a path into another group: the copy equals the
+    dataclass replacements written out; a bad path at any depth raises before anything is
+    built, naming the field."""
+    s = nanostage.presets.seed(1e-3)
+    out = replace_paths(
+        s,
+        {
+            "plant.dahl.coulomb_force_n": 15.0,
+            "plant.dahl.stiffness_n_per_m": 2e7,
+            "plant.table.mass_kg": 3.0,
+            "encoder.count_m": 2e-7,
+        },
+    )
+    p = s.plant
+    assert isinstance(p, nanostage.Plant)
+    want = dataclasses.replace(
+        s,
+        plant=dataclasses.replace(
+            p,
+            dahl=dataclasses.replace(p.dahl, coulomb_force_n=15.0, stiffness_n_per_m=2e7),
+            table=dataclasses.replace(p.table, mass_kg=3.0),
+        ),
+        encoder=dataclasses.replace(s.encoder, count_m=2e-7),
+    )
+    assert out == want
+    with pytest.raises(KeyError, match="has no field 'stifness_n_per_m'"):
+        replace_paths(s, {"plant.dahl.coulomb_force_n": 15.0, "plant.dahl.stifness_n_per_m": 1.0})
+
+
+def test_sample_period_is_the_median_step_and_follows_a_replaced_time_axis() -> None:
+    t = np.array([0.0, 1e-3, 2e-3, 3.5e-3, 4.5e-3])
+    x = np.zeros(5)
+    e = Experiment(name="e", time_s=t, reference_m=x, position_m=x)
+    assert e.sample_period_s == float(np.median(np.diff(t))) == 1e-3
+    e2 = dataclasses.replace(e, time_s=2 * t)
+    assert e2.sample_period_s == 2e-3 and e.sample_period_s == 1e-3
+    assert dataclasses.replace(e2, time_s=t).sample_period_s == 1e-3

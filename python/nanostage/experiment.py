@@ -25,7 +25,7 @@ Columns (the names a trace file uses):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -59,6 +59,8 @@ class Experiment:
     disturbance_n: FloatArray | None = None
     #: File (and window) the experiment was read from, for error messages and reports.
     source: str = ""
+    #: Median sample period, computed once (the diagnosis checks it on every simulation).
+    _sample_period_s: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = len(self.time_s)
@@ -71,6 +73,8 @@ class Experiment:
                     f"{self.source or self.name}: column {col!r} has shape {np.shape(arr)}, "
                     f"expected ({n},) like time_s"
                 )
+        period = float(np.median(np.diff(self.time_s))) if n > 1 else 0.0
+        object.__setattr__(self, "_sample_period_s", period)
 
     @property
     def n_samples(self) -> int:
@@ -80,7 +84,7 @@ class Experiment:
     @property
     def sample_period_s(self) -> float:
         """Median sample period, s."""
-        return float(np.median(np.diff(self.time_s))) if self.n_samples > 1 else 0.0
+        return self._sample_period_s
 
     def window(self, start_s: float, stop_s: float, name: str | None = None) -> Experiment:
         """The samples with ``start_s <= time_s < stop_s``, time kept as is."""

@@ -223,6 +223,12 @@ def replace_paths(obj: Any, values: Mapping[str, Any]) -> Any:
     """
     for path in values:
         get_path(obj, path)  # raise KeyError early for a bad path
+    return _replace_checked(obj, values)
+
+
+def _replace_checked(obj: Any, values: Mapping[str, Any]) -> Any:
+    """:func:`replace_paths` once every path is known to exist (checked once, at the root:
+    the diagnosis sets each experiment's controller on every model it simulates)."""
     grouped: dict[str, dict[str, Any]] = {}
     leaves: dict[str, Any] = {}
     for path, value in values.items():
@@ -233,7 +239,7 @@ def replace_paths(obj: Any, values: Mapping[str, Any]) -> Any:
             leaves[head] = value
     changes = dict(leaves)
     for head, sub in grouped.items():
-        changes[head] = replace_paths(getattr(obj, head), sub)
+        changes[head] = _replace_checked(getattr(obj, head), sub)
     return dataclasses.replace(obj, **changes) if changes else obj
 
 
