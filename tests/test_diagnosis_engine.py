@@ -150,19 +150,18 @@ def test_an_invalid_parameter_region_is_a_bad_fit_not_the_best(tmp_path: Path) -
         ),
     ]
     nominal = man.system()
-    with ThreadPoolExecutor(2) as pool:
-        prob = FitProblem(
-            free,
-            lambda v: replace_paths(nominal, {n: x for (n, _), x in zip(free, v, strict=True)}),
-            exps[:2],
-            pool,
-            lambda s, e: s,
-        )
-        prob.scale_m = 1e-7
-        bad = prob._vector(np.array([1.5, 1.9]))  # Coulomb 1.7e-4 N·m > static 1.2e-4 N·m
-        good = prob._vector(np.array([1.5, 1.3]))
-        assert np.sum(bad**2) > 1e6 * np.sum(good**2)
-        fit = prob.fit(3, FAST, seed=0)
+    prob = FitProblem(
+        free,
+        lambda v: replace_paths(nominal, {n: x for (n, _), x in zip(free, v, strict=True)}),
+        exps[:2],
+        2,
+        lambda s, e: s,
+    )
+    prob.scale_m = 1e-7
+    bad = prob._vector(np.array([1.5, 1.9]))  # Coulomb 1.7e-4 N·m > static 1.2e-4 N·m
+    good = prob._vector(np.array([1.5, 1.3]))
+    assert np.sum(bad**2) > 1e6 * np.sum(good**2)
+    fit = prob.fit(3, FAST, seed=0)
     assert fit.values["plant.motor_friction.coulomb_torque_nm"] <= 1.2e-4
 
 

@@ -21,6 +21,7 @@ __all__ = [
     "seed_values",
     "simulate_open_loop",
     "simulate_system",
+    "simulate_system_batch",
     "simulate_system_open_loop",
     "validate_controller",
     "validate_integrator",
@@ -47,6 +48,15 @@ def simulate_system(
     seed: int = 0,
     initial_position_m: float = 0.0,
 ) -> dict[str, Any]: ...
+def simulate_system_batch(
+    systems: list[Any],
+    references_m: list[npt.NDArray[np.float64]],
+    force_disturbances_n: list[npt.NDArray[np.float64] | None],
+    command_disturbances_v: list[npt.NDArray[np.float64] | None],
+    seeds: list[int],
+    initial_positions_m: list[float],
+    threads: int = 0,
+) -> list[dict[str, Any]]: ...
 def simulate_open_loop(
     plant: Any,
     integrator: Any,

@@ -22,7 +22,8 @@ use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 create_exception!(
@@ -759,6 +760,79 @@ fn simulate_system<'py>(
     trace_dict(py, tr)
 }
 
+/// Run the closed loops of several `System`s at once, in parallel (rayon, `threads` workers;
+/// 0: rayon's default pool) with the GIL released once for the whole batch; returns the
+/// dicts of [`simulate_system`] in the order given. Every configuration is checked before any
+/// simulation starts; the first failed run (in the order given) raises its error.
+#[pyfunction]
+#[pyo3(signature = (systems, references_m, force_disturbances_n, command_disturbances_v, seeds, initial_positions_m, threads=0))]
+#[allow(clippy::too_many_arguments)]
+fn simulate_system_batch<'py>(
+    py: Python<'py>,
+    systems: Vec<PySystem>,
+    references_m: Vec<PyReadonlyArray1<'py, f64>>,
+    force_disturbances_n: Vec<Option<PyReadonlyArray1<'py, f64>>>,
+    command_disturbances_v: Vec<Option<PyReadonlyArray1<'py, f64>>>,
+    seeds: Vec<u64>,
+    initial_positions_m: Vec<f64>,
+    threads: usize,
+) -> PyResult<Bound<'py, PyList>> {
+    let n = systems.len();
+    for (name, len) in [
+        ("references_m", references_m.len()),
+        ("force_disturbances_n", force_disturbances_n.len()),
+        ("command_disturbances_v", command_disturbances_v.len()),
+        ("seeds", seeds.len()),
+        ("initial_positions_m", initial_positions_m.len()),
+    ] {
+        if len != n {
+            return Err(PyValueError::new_err(format!(
+                "{name} has {len} entries; expected one per system ({n})"
+            )));
+        }
+    }
+    let mut jobs = Vec::with_capacity(n);
+    for i in 0..n {
+        let cfg =
+            build_system(&systems[i], seeds[i], initial_positions_m[i]).map_err(config_err)?;
+        jobs.push((
+            cfg,
+            references_m[i].as_array().to_vec(),
+            optional_series(&force_disturbances_n[i]),
+            optional_series(&command_disturbances_v[i]),
+        ));
+    }
+    let run = || -> Vec<Result<Trace, SimError>> {
+        jobs.par_iter()
+            .map(|(cfg, r, f, c)| {
+                run_extended(
+                    cfg,
+                    r,
+                    KnownInputs {
+                        force_n: f,
+                        command_v: c,
+                    },
+                    None,
+                )
+            })
+            .collect()
+    };
+    let results = py.detach(|| {
+        if threads == 0 {
+            return run();
+        }
+        match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+            Ok(pool) => pool.install(run),
+            Err(_) => run(),
+        }
+    });
+    let out = PyList::empty(py);
+    for r in results {
+        out.append(trace_dict(py, r.map_err(sim_err)?)?)?;
+    }
+    Ok(out)
+}
+
 fn trace_dict(py: Python<'_>, tr: Trace) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("stats", stats_dict(py, &tr.stats)?)?;
@@ -1251,6 +1325,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ConfigError", py.get_type::<ConfigError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
     m.add_function(wrap_pyfunction!(simulate_system, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate_system_batch, m)?)?;
     m.add_function(wrap_pyfunction!(validate_system, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_system_open_loop, m)?)?;
     m.add_function(wrap_pyfunction!(friction_response, m)?)?;

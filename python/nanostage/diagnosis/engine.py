@@ -25,11 +25,9 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,7 +38,7 @@ from scipy.stats import qmc
 
 from ..config import System
 from ..experiment import Experiment
-from ..simulate import simulate
+from ..simulate import simulate_batch
 from .candidates import Candidate, Param, applicable_candidates
 
 __all__ = [
@@ -105,7 +103,8 @@ class DiagnosisSettings:
     #: benchmark's truth-started check (is the hidden effect detectable at all?).
     candidate_starts: Mapping[str, Mapping[str, float]] | None = None
     seed: int = 0
-    workers: int = 0  #: 0: one per CPU
+    #: Threads of each batch of simulations (0: one per CPU).
+    workers: int = 0
 
 
 def with_starts(
@@ -161,13 +160,14 @@ class FitProblem:
         params: Sequence[tuple[str, Param]],
         build: Callable[[Sequence[float]], System],
         experiments: Sequence[Experiment],
-        executor: Executor,
+        threads: int,
         adapt: Adapt,
     ) -> None:
         self.params = list(params)
         self.build = build
         self.experiments = list(experiments)
-        self.executor = executor
+        #: Simulation threads of each batch (0: one per CPU).
+        self.threads = threads
         self.adapt = adapt
         self.n_evaluations = 0
         self.scale_m = 1e-7
@@ -178,14 +178,12 @@ class FitProblem:
         """Per-experiment gap (measured − simulated mean reading). The command residuals of
         experiments with a measured command are kept in ``last_command_ms`` (V², None where
         the experiment has no command)."""
-        futures = [
-            self.executor.submit(simulate_reading_and_command, self.adapt(system, e), e)
-            for e in experiments
-        ]
+        sims = simulate_readings_and_commands(
+            [self.adapt(system, e) for e in experiments], experiments, self.threads
+        )
         out = []
         self.last_command_ms: list[float | None] = []
-        for e, f in zip(experiments, futures, strict=True):
-            reading, command = f.result()
+        for e, (reading, command) in zip(experiments, sims, strict=True):
             if e.name not in self._plans:
                 self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
             out.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
@@ -506,24 +504,40 @@ def _rms(res: Sequence[FloatArray]) -> float:
 def simulate_reading_and_command(system: System, exp: Experiment) -> tuple[FloatArray, FloatArray]:
     """The simulated mean reading (true position of the sensor's side minus half a count)
     and the controller's output in volts, on the experiment's samples."""
-    t = system.sample_period_s
-    if abs(exp.sample_period_s - t) > 1e-3 * t:
-        raise ValueError(
-            f"experiment {exp.name!r} ({exp.source}): sample period {exp.sample_period_s:g} s "
-            f"differs from the controller's {t:g} s"
-        )
-    q = system.encoder.count_m
-    tr = simulate(
-        system,
-        exp.reference_m,
-        force_disturbance_n=exp.disturbance_n,
-        command_disturbance_v=exp.disturbance_v,
-        initial_position_m=float(exp.position_m[0]) + 0.5 * q,
+    return simulate_readings_and_commands([system], [exp])[0]
+
+
+def simulate_readings_and_commands(
+    systems: Sequence[System], experiments: Sequence[Experiment], threads: int = 0
+) -> list[tuple[FloatArray, FloatArray]]:
+    """:func:`simulate_reading_and_command` for each (system, experiment) pair, simulated in
+    one parallel batch of the core (``threads`` workers; 0: one per CPU)."""
+    for system, exp in zip(systems, experiments, strict=True):
+        t = system.sample_period_s
+        if abs(exp.sample_period_s - t) > 1e-3 * t:
+            raise ValueError(
+                f"experiment {exp.name!r} ({exp.source}): sample period "
+                f"{exp.sample_period_s:g} s differs from the controller's {t:g} s"
+            )
+    traces = simulate_batch(
+        systems,
+        [e.reference_m for e in experiments],
+        force_disturbances_n=[e.disturbance_n for e in experiments],
+        command_disturbances_v=[e.disturbance_v for e in experiments],
+        initial_positions_m=[
+            float(e.position_m[0]) + 0.5 * s.encoder.count_m
+            for s, e in zip(systems, experiments, strict=True)
+        ],
+        threads=threads,
     )
-    x = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
-    reading: FloatArray = x - 0.5 * q
-    command: FloatArray = tr.command * tr.output_unit_v
-    return reading, command
+    out = []
+    for system, tr in zip(systems, traces, strict=True):
+        q = system.encoder.count_m
+        x = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
+        reading: FloatArray = x - 0.5 * q
+        command: FloatArray = tr.command * tr.output_unit_v
+        out.append((reading, command))
+    return out
 
 
 def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
@@ -698,7 +712,8 @@ class _Ctx:
     folds: Sequence[Split]
     floor: float
     st: DiagnosisSettings
-    pool: Executor
+    #: Simulation threads per batch.
+    threads: int
     adapt: Adapt
     #: The nominal model the free parameters are set on.
     nominal: System
@@ -768,7 +783,7 @@ class _Ctx:
                 free + list(params),
                 self.builder(base, apply_extra),
                 train,
-                self.pool,
+                self.threads,
                 self.adapt,
             )
             # Two starts at least: the warm values, and the manifest's (prior) values.
@@ -824,7 +839,6 @@ def diagnose_experiments(
     which refitting the model before from a candidate's free values improved it) and
     ``timing_s``."""
     st = settings or DiagnosisSettings()
-    workers = st.workers or (os.cpu_count() or 1)
     t_start = time.perf_counter()
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
@@ -840,130 +854,127 @@ def diagnose_experiments(
             f"candidate_starts names {', '.join(map(repr, unknown))}, not among the "
             f"candidates of this diagnosis ({', '.join(c.name for c in cands)})"
         )
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        ctx = _Ctx(
-            free=free,
-            set_free=set_free,
-            folds=folds,
-            floor=floor,
-            st=st,
-            pool=pool,
-            weights=weights,
-            adapt=adapt or (lambda s, e: s),
-            nominal=nominal,
-        )
-        _progress(
-            f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
-            f"{len(folds)} fold(s))",
-            progress,
-        )
-        nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
-            nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
-        )
-        ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
-        selected: list[str] = []
-        rounds: list[list[CandidateResult]] = []
-        refits: list[dict[str, Any]] = []
-        current = nominal
-        current_fits = nominal_fits
-        current_ms = base_ms
-        current_cmd = base_cmd
-        current_units: FloatArray | None = base_units
-        pool_names = [c.name for c in cands]
-        for rnd in range(st.forward_rounds):
-            names = pool_names if rnd == 0 else pool_names[: st.forward_top]
-            cand_now, _ = applicable_candidates(current, [n for n in names if n not in selected])
-            cand_now = with_starts(cand_now, st.candidate_starts)
-            if any(n in FRICTION_MODELS for n in selected):
-                cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
-            results: list[CandidateResult] = []
-            for i, cand in enumerate(cand_now):
-                t0 = time.perf_counter()
-                try:
-                    r = _judge(
-                        cand, current, current_ms, current_cmd, current_units, ctx, i, screen=True
-                    )
-                except (ValueError, RuntimeError) as exc:
-                    # An invalid combination with the effects already selected, or a
-                    # simulation failing at the start values: reported, not fatal.
-                    skipped[cand.name] = f"round {rnd + 1}: could not be fitted: {exc}"
-                    _progress(f"  round {rnd + 1} {cand.name}: not fitted ({exc})", progress)
-                    continue
-                results.append(r)
-                _progress(
-                    f"  round {rnd + 1} [{i + 1}/{len(cand_now)}] {cand.name:26s} "
-                    f"validation {r.validation_rms_m * 1e9:9.1f} nm  shrink {r.shrink:+.1%}"
-                    f"{'  significant' if r.significant else ''}"
-                    f"  ({time.perf_counter() - t0:.1f} s)",
-                    progress,
+    ctx = _Ctx(
+        free=free,
+        set_free=set_free,
+        folds=folds,
+        floor=floor,
+        st=st,
+        threads=st.workers,
+        weights=weights,
+        adapt=adapt or (lambda s, e: s),
+        nominal=nominal,
+    )
+    _progress(
+        f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
+        f"{len(folds)} fold(s))",
+        progress,
+    )
+    nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
+        nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
+    )
+    ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
+    selected: list[str] = []
+    rounds: list[list[CandidateResult]] = []
+    refits: list[dict[str, Any]] = []
+    current = nominal
+    current_fits = nominal_fits
+    current_ms = base_ms
+    current_cmd = base_cmd
+    current_units: FloatArray | None = base_units
+    pool_names = [c.name for c in cands]
+    for rnd in range(st.forward_rounds):
+        names = pool_names if rnd == 0 else pool_names[: st.forward_top]
+        cand_now, _ = applicable_candidates(current, [n for n in names if n not in selected])
+        cand_now = with_starts(cand_now, st.candidate_starts)
+        if any(n in FRICTION_MODELS for n in selected):
+            cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
+        results: list[CandidateResult] = []
+        for i, cand in enumerate(cand_now):
+            t0 = time.perf_counter()
+            try:
+                r = _judge(
+                    cand, current, current_ms, current_cmd, current_units, ctx, i, screen=True
                 )
-            results.sort(key=lambda r: r.validation_rms_m)
-            # Refine the best few with all starts (warm, the manifest's prior, Latin
-            # hypercube), then rank again.
-            by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
-            for j, r in enumerate(results[: st.refine_top]):
-                i, cand = by_name[r.effect]
-                t0 = time.perf_counter()
-                try:
-                    results[j] = _judge(
-                        cand, current, current_ms, current_cmd, current_units, ctx, i
-                    )
-                except (ValueError, RuntimeError) as exc:
-                    skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
-                    continue
-                _progress(
-                    f"  round {rnd + 1} refit {cand.name:26s} validation "
-                    f"{results[j].validation_rms_m * 1e9:9.1f} nm  shrink {results[j].shrink:+.1%}"
-                    f"{'  significant' if results[j].significant else ''}"
-                    f"  ({time.perf_counter() - t0:.1f} s)",
-                    progress,
-                )
-            results.sort(key=lambda r: r.validation_rms_m)
-            # Refitting alone: a candidate's fit moves the free nominal parameters too, and
-            # may have found a better optimum of the model *without* the effect. Refit the
-            # model before from each significant candidate's free values; a better
-            # training fit becomes the baseline, and every candidate is judged again.
-            better = _refit_control(ctx, current, results, current_fits, current_ms, rnd, progress)
-            if better is not None:
-                current_fits, current_ms, current_cmd, current_units, record = better
-                refits.append(record)
-                ctx.warm[:] = [_free_values(f, free) for f in current_fits]
-                if rnd == 0:
-                    nominal_fits, base_ms = current_fits, current_ms
-                results = [
-                    _verdict(
-                        r.effect,
-                        r.fold_fits,
-                        r.validation_ms,
-                        r.validation_command_ms,
-                        r.setting,
-                        r.k_params,
-                        current_ms,
-                        current_cmd,
-                        ctx,
-                        r.index,
-                        r.validation_units,
-                        current_units,
-                    )
-                    for r in results
-                ]
-                results.sort(key=lambda r: r.validation_rms_m)
-            rounds.append(results)
+            except (ValueError, RuntimeError) as exc:
+                # An invalid combination with the effects already selected, or a
+                # simulation failing at the start values: reported, not fatal.
+                skipped[cand.name] = f"round {rnd + 1}: could not be fitted: {exc}"
+                _progress(f"  round {rnd + 1} {cand.name}: not fitted ({exc})", progress)
+                continue
+            results.append(r)
+            _progress(
+                f"  round {rnd + 1} [{i + 1}/{len(cand_now)}] {cand.name:26s} "
+                f"validation {r.validation_rms_m * 1e9:9.1f} nm  shrink {r.shrink:+.1%}"
+                f"{'  significant' if r.significant else ''}"
+                f"  ({time.perf_counter() - t0:.1f} s)",
+                progress,
+            )
+        results.sort(key=lambda r: r.validation_rms_m)
+        # Refine the best few with all starts (warm, the manifest's prior, Latin
+        # hypercube), then rank again.
+        by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
+        for j, r in enumerate(results[: st.refine_top]):
+            i, cand = by_name[r.effect]
+            t0 = time.perf_counter()
+            try:
+                results[j] = _judge(cand, current, current_ms, current_cmd, current_units, ctx, i)
+            except (ValueError, RuntimeError) as exc:
+                skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
+                continue
+            _progress(
+                f"  round {rnd + 1} refit {cand.name:26s} validation "
+                f"{results[j].validation_rms_m * 1e9:9.1f} nm  shrink {results[j].shrink:+.1%}"
+                f"{'  significant' if results[j].significant else ''}"
+                f"  ({time.perf_counter() - t0:.1f} s)",
+                progress,
+            )
+        results.sort(key=lambda r: r.validation_rms_m)
+        # Refitting alone: a candidate's fit moves the free nominal parameters too, and
+        # may have found a better optimum of the model *without* the effect. Refit the
+        # model before from each significant candidate's free values; a better
+        # training fit becomes the baseline, and every candidate is judged again.
+        better = _refit_control(ctx, current, results, current_fits, current_ms, rnd, progress)
+        if better is not None:
+            current_fits, current_ms, current_cmd, current_units, record = better
+            refits.append(record)
+            ctx.warm[:] = [_free_values(f, free) for f in current_fits]
             if rnd == 0:
-                pool_names = [r.effect for r in results]
-            best = next((r for r in results if r.significant), None)
-            if best is None:
-                break
-            selected.append(best.effect)
-            cand_best = next(c for c in cand_now if c.name == best.effect)
-            values = _effect_values(cand_best, best)
-            ctx.selected_effects.append((cand_best, values))
-            current = cand_best.apply(current, values)
-            current_fits = best.fold_fits
-            ctx.warm[:] = [_free_values(f, free) for f in best.fold_fits]
-            current_ms = best.validation_ms
-            current_cmd = best.validation_command_ms
-            current_units = best.validation_units
+                nominal_fits, base_ms = current_fits, current_ms
+            results = [
+                _verdict(
+                    r.effect,
+                    r.fold_fits,
+                    r.validation_ms,
+                    r.validation_command_ms,
+                    r.setting,
+                    r.k_params,
+                    current_ms,
+                    current_cmd,
+                    ctx,
+                    r.index,
+                    r.validation_units,
+                    current_units,
+                )
+                for r in results
+            ]
+            results.sort(key=lambda r: r.validation_rms_m)
+        rounds.append(results)
+        if rnd == 0:
+            pool_names = [r.effect for r in results]
+        best = next((r for r in results if r.significant), None)
+        if best is None:
+            break
+        selected.append(best.effect)
+        cand_best = next(c for c in cand_now if c.name == best.effect)
+        values = _effect_values(cand_best, best)
+        ctx.selected_effects.append((cand_best, values))
+        current = cand_best.apply(current, values)
+        current_fits = best.fold_fits
+        ctx.warm[:] = [_free_values(f, free) for f in best.fold_fits]
+        current_ms = best.validation_ms
+        current_cmd = best.validation_command_ms
+        current_units = best.validation_units
     return {
         "nominal": nominal_fits[0],
         "nominal_fits": nominal_fits,
