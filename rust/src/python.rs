@@ -25,6 +25,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 create_exception!(
     _core,
@@ -817,20 +818,37 @@ fn simulate_system_batch<'py>(
             })
             .collect()
     };
-    let results = py.detach(|| {
-        if threads == 0 {
-            return run();
-        }
-        match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
-            Ok(pool) => pool.install(run),
-            Err(_) => run(),
-        }
+    let results = py.detach(|| match batch_pool(threads) {
+        Some(pool) => pool.install(run),
+        None => run(),
     });
     let out = PyList::empty(py);
     for r in results {
         out.append(trace_dict(py, r.map_err(sim_err)?)?)?;
     }
     Ok(out)
+}
+
+/// The rayon pool of `threads` workers for [`simulate_system_batch`], built once per thread
+/// count and kept (the diagnosis calls the batch thousands of times); `None` for 0 (rayon's
+/// default pool) or if a pool cannot be built (the batch then runs on the default pool).
+fn batch_pool(threads: usize) -> Option<Arc<rayon::ThreadPool>> {
+    static POOLS: Mutex<Vec<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(Vec::new());
+    if threads == 0 {
+        return None;
+    }
+    let mut pools = POOLS.lock().ok()?;
+    if let Some((_, p)) = pools.iter().find(|(n, _)| *n == threads) {
+        return Some(Arc::clone(p));
+    }
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .ok()?,
+    );
+    pools.push((threads, Arc::clone(&pool)));
+    Some(pool)
 }
 
 fn trace_dict(py: Python<'_>, tr: Trace) -> PyResult<Bound<'_, PyDict>> {

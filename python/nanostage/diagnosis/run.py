@@ -38,6 +38,7 @@ from .engine import (
     Fit,
     align_holds,
     diagnose_experiments,
+    simulate_readings_and_commands,
     simulated_mean_reading,
 )
 from .gap import analyse_gap
@@ -405,9 +406,10 @@ def _simulated(
     out = []
     for f, (_, v) in zip(fits, folds, strict=True):
         system = f.system if isinstance(f, Fit) else f
+        sims = simulate_readings_and_commands([adapt(system, e) for e in v], v)
         out += [
-            align_holds(e.position_m, simulated_mean_reading(adapt(system, e), e), e.reference_m)
-            for e in v
+            align_holds(e.position_m, reading, e.reference_m)
+            for e, (reading, _) in zip(v, sims, strict=True)
         ]
     return out
 
