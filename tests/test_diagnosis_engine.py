@@ -8,7 +8,6 @@ import dataclasses as dc
 import json
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any, cast
@@ -163,6 +162,58 @@ def test_an_invalid_parameter_region_is_a_bad_fit_not_the_best(tmp_path: Path) -
     assert np.sum(bad**2) > 1e6 * np.sum(good**2)
     fit = prob.fit(3, FAST, seed=0)
     assert fit.values["plant.motor_friction.coulomb_torque_nm"] <= 1.2e-4
+
+
+def test_batched_evaluations_equal_one_at_a_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The finite-difference points of each Jacobian (scipy's ``workers`` hook) and the
+    scan's points are simulated as one batch: every point's residuals are bit for bit those
+    of evaluating it alone, an invalid point among them is still the failed gap, and a whole
+    fit takes the same path as with scipy's own one-at-a-time evaluation."""
+    import nanostage.diagnosis.engine as eng
+
+    m = _case(tmp_path, Effects(), seed=6)
+    man = load_manifest(m)
+    exps = [e for _, e in man.experiments()][:2]
+    free = [
+        ("plant.dahl.coulomb_force_n", Param(name="f", unit="N", lower=20, upper=40, initial=30.4)),
+        (
+            "plant.motor_friction.coulomb_torque_nm",
+            Param(name="t", unit="N·m", lower=5e-5, upper=2e-4, initial=1e-4),
+        ),
+    ]
+    nominal = man.system()
+
+    def problem() -> FitProblem:
+        return FitProblem(
+            free,
+            lambda v: replace_paths(nominal, {n: x for (n, _), x in zip(free, v, strict=True)}),
+            exps,
+            2,
+            lambda s, e: s,
+        )
+
+    prob = problem()
+    points = [np.array([1.5, 1.3]), np.array([1.5, 1.9]), np.array([1.2, 1.05])]  # 2nd invalid
+    batch = prob._batch_map(lambda u: u, iter(points))
+    one = [prob._vector(u) for u in points]
+    assert prob.n_evaluations == 6
+    assert all(np.array_equal(a, b) for a, b in zip(batch, one, strict=True))
+    assert np.sum(batch[1] ** 2) > 1e6 * np.sum(batch[0] ** 2)
+
+    batched = problem().fit(2, FAST, seed=0, scan=4)
+    real = eng.least_squares
+
+    def one_at_a_time(fun: Any, x0: np.ndarray, **kw: Any) -> Any:
+        kw.pop("workers")
+        return real(fun, x0, **kw)
+
+    monkeypatch.setattr(eng, "least_squares", one_at_a_time)
+    alone = problem().fit(2, FAST, seed=0, scan=4)
+    assert batched.values == alone.values
+    assert batched.train_rms_m == alone.train_rms_m
+    assert batched.n_evaluations == alone.n_evaluations
 
 
 def test_benchmark_design_reference() -> None:
@@ -823,9 +874,9 @@ def test_scan_starts_fit_from_the_next_best_scanned_points(
     target = np.array([1.2, 1.7])
 
     class Bowl(FitProblem):
-        def _vector(self, u: np.ndarray) -> np.ndarray:
-            self.n_evaluations += 1
-            return np.asarray(u, dtype=float) - target
+        def _vectors(self, us: Any) -> list[np.ndarray]:
+            self.n_evaluations += len(us)
+            return [np.asarray(u, dtype=float) - target for u in us]
 
     params = [
         ("a", Param(name="a", unit="-", lower=0.0, upper=1.0, initial=0.9)),
@@ -840,23 +891,20 @@ def test_scan_starts_fit_from_the_next_best_scanned_points(
 
     monkeypatch.setattr(eng, "least_squares", recording)
     st = DiagnosisSettings()
-    with ThreadPoolExecutor(1) as pool:
-        for k in (1, 3):
-            x0s.clear()
-            prob = Bowl(
-                params, lambda v: seed_system, [cast(Experiment, None)], pool, lambda s, e: s
-            )
-            fit = prob.fit(2, st, seed=5, scan=32, scan_starts=k)
-            assert fit.values["a"] == pytest.approx(0.2, abs=1e-3)
-            # The scanned points, as fit() draws them, ranked by their cost.
-            rows = 1.0 + qmc_rows(32, seed=5 + 7919)
-            cost = np.sum((rows - target) ** 2, axis=1)
-            warm = np.array([1.9, 1.1])
-            better = [rows[i] for i in np.argsort(cost) if cost[i] < np.sum((warm - target) ** 2)]
-            assert np.allclose(x0s[0], warm)
-            assert len(x0s) == 1 + min(k, len(better))
-            for got, want in zip(x0s[1:], better, strict=False):
-                assert np.allclose(got, want)
+    for k in (1, 3):
+        x0s.clear()
+        prob = Bowl(params, lambda v: seed_system, [cast(Experiment, None)], 1, lambda s, e: s)
+        fit = prob.fit(2, st, seed=5, scan=32, scan_starts=k)
+        assert fit.values["a"] == pytest.approx(0.2, abs=1e-3)
+        # The scanned points, as fit() draws them, ranked by their cost.
+        rows = 1.0 + qmc_rows(32, seed=5 + 7919)
+        cost = np.sum((rows - target) ** 2, axis=1)
+        warm = np.array([1.9, 1.1])
+        better = [rows[i] for i in np.argsort(cost) if cost[i] < np.sum((warm - target) ** 2)]
+        assert np.allclose(x0s[0], warm)
+        assert len(x0s) == 1 + min(k, len(better))
+        for got, want in zip(x0s[1:], better, strict=False):
+            assert np.allclose(got, want)
 
 
 def qmc_rows(n: int, seed: int) -> np.ndarray:

@@ -27,7 +27,7 @@ import itertools
 import math
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -171,6 +171,9 @@ class FitProblem:
         self.adapt = adapt
         self.n_evaluations = 0
         self.scale_m = 1e-7
+        #: Mean-square command residual of each experiment of the last system simulated, V²
+        #: (None where the experiment has no measured command).
+        self.last_command_ms: list[float | None] = []
         #: :func:`gap_plan` of each experiment (by name), computed on first use.
         self._plans: dict[str, list[HoldPlan]] = {}
 
@@ -178,38 +181,91 @@ class FitProblem:
         """Per-experiment gap (measured − simulated mean reading). The command residuals of
         experiments with a measured command are kept in ``last_command_ms`` (V², None where
         the experiment has no command)."""
+        return self.residuals_of([system], experiments)[0]
+
+    def residuals_of(
+        self, systems: Sequence[System], experiments: Sequence[Experiment]
+    ) -> list[list[FloatArray]]:
+        """:meth:`residuals` of several systems, all their simulations in one batch of the
+        core (``last_command_ms`` is that of the last system)."""
+        n = len(experiments)
+        pairs = [(self.adapt(s, e), e) for s in systems for e in experiments]
         sims = simulate_readings_and_commands(
-            [self.adapt(system, e) for e in experiments], experiments, self.threads
+            [a for a, _ in pairs], [e for _, e in pairs], self.threads
         )
-        out = []
-        self.last_command_ms: list[float | None] = []
-        for e, (reading, command) in zip(experiments, sims, strict=True):
-            if e.name not in self._plans:
-                self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
-            out.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
-            self.last_command_ms.append(
-                None if e.command_v is None else float(np.mean((e.command_v - command) ** 2))
-            )
+        out: list[list[FloatArray]] = []
+        for j in range(len(systems)):
+            gaps = []
+            self.last_command_ms = []
+            for e, (reading, command) in zip(experiments, sims[j * n : (j + 1) * n], strict=True):
+                if e.name not in self._plans:
+                    self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
+                gaps.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
+                self.last_command_ms.append(
+                    None if e.command_v is None else float(np.mean((e.command_v - command) ** 2))
+                )
+            out.append(gaps)
         return out
 
-    def _vector(self, u: FloatArray) -> FloatArray:
-        values = [p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, u, strict=True)]
-        self.n_evaluations += 1
-        try:
-            res = self.residuals(self.build(values), self.experiments)
-        except (RuntimeError, ValueError):
-            # A failed simulation (or an invalid combination, e.g. a Coulomb level above the
-            # static one) is a very bad fit, not a crash: a gap of 1 mm in every sample, far
-            # worse than any valid model (the residuals below are in counts).
-            return np.concatenate(
-                [
-                    np.full(len(e.time_s), FAILED_GAP_M / (self.scale_m * math.sqrt(len(e.time_s))))
-                    for e in self.experiments
-                ]
-            )
+    def _failed_vector(self) -> FloatArray:
+        # A failed simulation (or an invalid combination, e.g. a Coulomb level above the
+        # static one) is a very bad fit, not a crash: a gap of 1 mm in every sample, far
+        # worse than any valid model (the residuals are in counts).
+        return np.concatenate(
+            [
+                np.full(len(e.time_s), FAILED_GAP_M / (self.scale_m * math.sqrt(len(e.time_s))))
+                for e in self.experiments
+            ]
+        )
+
+    def _scaled(self, res: Sequence[FloatArray]) -> FloatArray:
         # In counts (well-scaled for the optimiser's tolerances), each experiment weighted by
         # 1/√n so that it contributes its mean square.
         return np.concatenate([r / (self.scale_m * math.sqrt(len(r))) for r in res])
+
+    def _vector(self, u: FloatArray) -> FloatArray:
+        return self._vectors([u])[0]
+
+    def _vectors(self, us: Sequence[FloatArray]) -> list[FloatArray]:
+        """The scaled residual vector at each normalised point of ``us``, every valid
+        point's simulations in one batch. Equal, point by point, to evaluating the points
+        one at a time (each simulation depends only on its own system and experiment)."""
+        self.n_evaluations += len(us)
+        systems: list[System | None] = []
+        for u in us:
+            values = [p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, u, strict=True)]
+            try:
+                systems.append(self.build(values))
+            except ValueError:
+                systems.append(None)
+        valid = [s for s in systems if s is not None]
+        results: list[list[FloatArray] | None]
+        try:
+            results = list(self.residuals_of(valid, self.experiments))
+        except (RuntimeError, ValueError):
+            # One failed run fails its whole batch: tell which, one system at a time.
+            results = []
+            for system in valid:
+                try:
+                    one = self.residuals(system, self.experiments) if len(valid) > 1 else None
+                    results.append(one)
+                except (RuntimeError, ValueError):
+                    results.append(None)
+        it = iter(results)
+        out = []
+        for maybe in systems:
+            r = None if maybe is None else next(it)
+            out.append(self._failed_vector() if r is None else self._scaled(r))
+        return out
+
+    def _batch_map(
+        self, fun: Callable[[FloatArray], FloatArray], points: Iterable[FloatArray]
+    ) -> list[FloatArray]:
+        """The map-like ``workers`` of :func:`scipy.optimize.least_squares`: its
+        finite-difference points (one per parameter) evaluated as one batch. ``fun`` is
+        scipy's wrapper of :meth:`_vector`, which this evaluates directly."""
+        del fun
+        return self._vectors(list(points))
 
     def fit(
         self,
@@ -263,7 +319,7 @@ class FitProblem:
                 u = first.copy()
                 u[k - n_draw :] = 1.0 + row
                 cands.append(u)
-            costs = [float(np.sum(self._vector(u) ** 2)) for u in [first, *cands]]
+            costs = [float(np.sum(v**2)) for v in self._vectors([first, *cands])]
             # The best `scan_starts` scanned points that beat the warm start, best first.
             best_scanned = [
                 cands[i - 1]
@@ -296,6 +352,7 @@ class FitProblem:
                 xtol=1e-4,
                 ftol=1e-4,
                 gtol=1e-6,
+                workers=self._batch_map,
             )
             if best is None or sol.cost < best.cost:
                 best = sol
