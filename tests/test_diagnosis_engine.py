@@ -44,6 +44,7 @@ from nanostage.diagnosis.engine import (
     DiagnosisSettings,
     Fit,
     FitProblem,
+    _best_shift,
     _judge,
     _refit_control,
     _verdict,
@@ -344,6 +345,28 @@ def test_hold_intervals_and_phase_insensitive_gap() -> None:
     # A different amplitude is still seen.
     r2 = gap_residual(meas, np.where(t >= 80, 1e-4 + 1e-6 * np.sin(2 * np.pi * t / 40), sim), ref)
     assert np.sqrt(np.mean(r2[200:] ** 2)) > 5e-7
+
+
+def test_best_shift_is_the_cheapest_clamped_shift() -> None:
+    """The time shift of a move out of a hunting hold (vectorised over the shifts) against
+    the definition, one shift at a time: the clamped shift of least squared difference;
+    no shift wins a tie, then the most negative one. Records with exact ties (quantised,
+    noise-free copies) included."""
+    rng = np.random.default_rng(3)
+    for trial in range(400):
+        n = int(rng.integers(20, 800))
+        a = int(rng.integers(0, n - 1))
+        h = int(rng.integers(a + 1, n + 1))
+        s = np.round(np.cumsum(rng.normal(size=n)) * 3) * 1e-8
+        m = np.roll(s, int(rng.integers(-60, 60))) + (0 if trial % 2 else 1e-9) * rng.normal(size=n)
+        w = int(rng.integers(0, 60))
+        best, best_cost = s[a:h], float(np.sum((m[a:h] - s[a:h]) ** 2))
+        for shift in range(-w, w + 1):
+            cand = s[np.clip(np.arange(a, h) + shift, 0, n - 1)]
+            cost = float(np.sum((m[a:h] - cand) ** 2))
+            if cost < best_cost:
+                best, best_cost = cand, cost
+        assert np.array_equal(_best_shift(m, s, a, h, w), best), trial
 
 
 def test_a_move_out_of_a_hunting_hold_is_compared_at_its_best_phase() -> None:

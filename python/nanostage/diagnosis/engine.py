@@ -516,15 +516,14 @@ def apply_gap_plan(
 
 def _best_shift(m: FloatArray, s: FloatArray, a: int, h: int, window: int) -> FloatArray:
     """``s`` over ``[a, h)`` delayed or advanced by the whole number of samples (at most
-    ``window``) that matches ``m`` there best (indices clamped to the record)."""
-    idx = np.arange(a, h)
-    best: FloatArray = s[a:h]
-    best_cost = float(np.sum((m[a:h] - best) ** 2))
-    for shift in range(-window, window + 1):
-        cand = s[np.clip(idx + shift, 0, len(s) - 1)]
-        cost = float(np.sum((m[a:h] - cand) ** 2))
-        if cost < best_cost:
-            best, best_cost = cand, cost
+    ``window``) that matches ``m`` there best (indices clamped to the record). Ties go to no
+    shift, then to the most negative shift."""
+    shifts = np.arange(-window, window + 1)
+    idx = np.clip(np.arange(a, h)[None, :] + shifts[:, None], 0, len(s) - 1)
+    cands = s[idx]
+    costs = np.sum((m[a:h][None, :] - cands) ** 2, axis=1)
+    k = window if costs[window] <= costs.min() else int(np.argmin(costs))
+    best: FloatArray = cands[k]
     return best
 
 
