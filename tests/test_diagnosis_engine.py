@@ -624,10 +624,17 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
 
 
 def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None:
+    """No effect, none called. The candidates fitted two at a time (the default) give the
+    report of fitting them one at a time, to the last bit."""
     m = _case(tmp_path, Effects(), seed=4)
     d = diagnose(m, None, settings=FAST, progress=False)
+    assert FAST.parallel_candidates == 2
     assert d.report["selected"] == []
     assert all(not c["significant"] for c in d.report["candidates"])
+    one = diagnose(m, None, settings=dc.replace(FAST, parallel_candidates=1), progress=False)
+    assert {k: v for k, v in one.report.items() if k != "timing_s"} == {
+        k: v for k, v in d.report.items() if k != "timing_s"
+    }
 
 
 def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:

@@ -27,7 +27,8 @@ import itertools
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -105,6 +106,9 @@ class DiagnosisSettings:
     seed: int = 0
     #: Threads of each batch of simulations (0: one per CPU).
     workers: int = 0
+    #: Candidates fitted at once within a round (Python threads; each fit's simulations
+    #: still run as batches on ``workers`` threads). The results do not depend on it.
+    parallel_candidates: int = 2
 
 
 def with_starts(
@@ -946,13 +950,12 @@ def diagnose_experiments(
         if any(n in FRICTION_MODELS for n in selected):
             cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
         results: list[CandidateResult] = []
-        for i, cand in enumerate(cand_now):
-            t0 = time.perf_counter()
-            try:
-                r = _judge(
-                    cand, current, current_ms, current_cmd, current_units, ctx, i, screen=True
-                )
-            except (ValueError, RuntimeError) as exc:
+
+        now = (current, current_ms, current_cmd, current_units)
+        for i, cand, r, exc, seconds in _concurrently(
+            list(enumerate(cand_now)), now, ctx, screen=True
+        ):
+            if r is None:
                 # An invalid combination with the effects already selected, or a
                 # simulation failing at the start values: reported, not fatal.
                 skipped[cand.name] = f"round {rnd + 1}: could not be fitted: {exc}"
@@ -963,26 +966,27 @@ def diagnose_experiments(
                 f"  round {rnd + 1} [{i + 1}/{len(cand_now)}] {cand.name:26s} "
                 f"validation {r.validation_rms_m * 1e9:9.1f} nm  shrink {r.shrink:+.1%}"
                 f"{'  significant' if r.significant else ''}"
-                f"  ({time.perf_counter() - t0:.1f} s)",
+                f"  ({seconds:.1f} s)",
                 progress,
             )
         results.sort(key=lambda r: r.validation_rms_m)
         # Refine the best few with all starts (warm, the manifest's prior, Latin
         # hypercube), then rank again.
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
-        for j, r in enumerate(results[: st.refine_top]):
-            i, cand = by_name[r.effect]
-            t0 = time.perf_counter()
-            try:
-                results[j] = _judge(cand, current, current_ms, current_cmd, current_units, ctx, i)
-            except (ValueError, RuntimeError) as exc:
+
+        top = [by_name[r.effect] for r in results[: st.refine_top]]
+        for j, (_, cand, refined, exc, seconds) in enumerate(
+            _concurrently(top, now, ctx, screen=False)
+        ):
+            if refined is None:
                 skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
                 continue
+            results[j] = refined
             _progress(
                 f"  round {rnd + 1} refit {cand.name:26s} validation "
                 f"{results[j].validation_rms_m * 1e9:9.1f} nm  shrink {results[j].shrink:+.1%}"
                 f"{'  significant' if results[j].significant else ''}"
-                f"  ({time.perf_counter() - t0:.1f} s)",
+                f"  ({seconds:.1f} s)",
                 progress,
             )
         results.sort(key=lambda r: r.validation_rms_m)
@@ -1047,6 +1051,36 @@ def diagnose_experiments(
         "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
     }
+
+
+def _concurrently(
+    items: Sequence[tuple[int, Candidate]],
+    now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
+    ctx: _Ctx,
+    screen: bool,
+) -> Iterator[tuple[int, Candidate, CandidateResult | None, Exception | None, float]]:
+    """:func:`_judge` of each ``(index, candidate)`` against the model ``now`` (system,
+    validation mean squares, command residuals, move units), up to
+    ``ctx.st.parallel_candidates`` at a time, yielded in the order given:
+    ``(i, cand, result, None, seconds)``, or ``(i, cand, None, error, seconds)`` for a
+    candidate that could not be fitted (``ValueError``/``RuntimeError``). The candidates'
+    fits are independent (each its own problem, starts and seed), so the results do not
+    depend on how many run at once: two at once overlap one fit's Python work with the
+    other's simulations (which release the GIL)."""
+
+    def one(item: tuple[int, Candidate]) -> tuple[CandidateResult | None, Exception | None, float]:
+        t0 = time.perf_counter()
+        try:
+            r = _judge(item[1], *now, ctx, item[0], screen=screen)
+        except (ValueError, RuntimeError) as exc:
+            return None, exc, time.perf_counter() - t0
+        return r, None, time.perf_counter() - t0
+
+    threads = max(1, min(ctx.st.parallel_candidates, len(items)))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        outcomes = pool.map(one, items) if threads > 1 else map(one, items)
+        for (i, cand), (r, exc, dt) in zip(items, outcomes, strict=True):
+            yield i, cand, r, exc, dt
 
 
 def _refit_control(
