@@ -48,6 +48,8 @@ from nanostage.diagnosis.engine import (
     _judge,
     _refit_control,
     _verdict,
+    crossfit_folds,
+    crossfit_models,
     experiment_floors_m,
     experiment_kind,
     gap_residual,
@@ -541,11 +543,20 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
         ns.presets.seed(1e-3), effects=Effects(motor_friction=FrictionModifiers(asymmetry=0.3))
     )
     assert model_gap(m, truth)["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
+    # Cross-fit: every validation experiment judged once, by models that never saw it.
+    cf = r["crossfit"]
+    val_names = r["folds"][0]["validate"]
+    assert sorted(n for judged in cf["judged"] for n in judged) == sorted(val_names)
+    assert cf["folds"] == min(FAST.crossfit_folds, len(val_names))
+    assert cf["gap_after_rms_m"] < 0.5 * cf["gap_before_rms_m"]
+    assert cf["shrink"] == pytest.approx(1.0 - cf["gap_after_rms_m"] / cf["gap_before_rms_m"])
     on_disk = json.loads((tmp_path / "out" / "report.json").read_text())
-    for key in ("gap_before", "candidates", "selected", "gap_after"):
+    for key in ("gap_before", "candidates", "selected", "gap_after", "crossfit"):
         assert key in on_disk
     assert {"total_rms_m", "by_segment"} <= set(on_disk["gap_before"])
-    assert "asymmetric_friction" in (tmp_path / "out" / "report.md").read_text()
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "asymmetric_friction" in md
+    assert f"| shrink | {cf['shrink']:.1%} |" in md
 
 
 def test_indistinguishable_candidates_are_reported_as_ties() -> None:
@@ -623,13 +634,77 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
     assert ctx.warm == [{free[0][0]: 5.0}]
 
 
+def test_crossfit_folds_judge_each_validation_experiment_once_by_a_fit_without_it() -> None:
+    for n_train, n_val, k in [(8, 13, 3), (2, 2, 3), (5, 1, 3), (3, 7, 1), (4, 6, 6)]:
+        folds = crossfit_folds(n_train, n_val, k)
+        assert len(folds) == min(k, n_val)
+        judged = sorted(i for _, j in folds for i in j)
+        assert judged == list(range(n_train, n_train + n_val))
+        for train, j in folds:
+            assert set(range(n_train)) <= set(train)  # the training experiments, always
+            assert not set(train) & set(j)
+            assert sorted(set(train) | set(j)) == list(range(n_train + n_val))
+        sizes = [len(j) for _, j in folds]
+        assert max(sizes) - min(sizes) <= 1
+
+
+def test_crossfit_models_fit_on_everything_but_the_judged_experiments(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The refits of the cross-fit: per fold, the nominal and the selected model are fitted
+    on exactly the experiments the fold does not judge, the selected model with the free
+    parameters and the effect's own, warm-started at the given values."""
+    import nanostage.diagnosis.engine as eng
+
+    m = _case(tmp_path, Effects(), seed=6)
+    man = load_manifest(m)
+    exps = [e for _, e in man.experiments()]
+    train, validate = exps[:2], exps[2:]
+    free = [
+        ("plant.dahl.coulomb_force_n", Param(name="f", unit="N", lower=20, upper=40, initial=30.4))
+    ]
+    seen: list[tuple[list[str], list[str]]] = []
+    real = eng.FitProblem.fit
+
+    def recording(self: FitProblem, *a: Any, **kw: Any) -> Fit:
+        seen.append(([n for n, _ in self.params], [e.name for e in self.experiments]))
+        return real(self, *a, **kw)
+
+    monkeypatch.setattr(eng.FitProblem, "fit", recording)
+    (offset,), _ = applicable_candidates(man.system(), ["offset_force"])
+    out = crossfit_models(
+        man.system(),
+        free,
+        lambda s, v: replace_paths(s, dict(v)),
+        train,
+        validate,
+        [(offset, [0.5])],
+        {"plant.dahl.coulomb_force_n": 30.0},
+        {"plant.dahl.coulomb_force_n": 31.0},
+        k=2,
+        adapt=lambda s, e: s,
+        settings=FAST,
+    )
+    assert len(out) == 2 and len(seen) == 4
+    names = [e.name for e in exps]
+    for judged, before, after in out:
+        rest = [n for n in names if n not in {e.name for e in judged}]
+        fits = [x for x in seen if sorted(x[1]) == sorted(rest)]
+        coulomb = "plant.dahl.coulomb_force_n"
+        assert sorted(p for p, _ in fits) == [[coulomb], [coulomb, "offset_force.external_force_n"]]
+        # The selected model carries the offset force; the nominal one is the preset with
+        # only its free parameter refitted.
+        assert before == replace_paths(man.system(), {coulomb: get_path(before, coulomb)})
+        assert after != replace_paths(man.system(), {coulomb: get_path(after, coulomb)})
+
+
 def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None:
     """No effect, none called. The candidates fitted two at a time (the default) give the
     report of fitting them one at a time, to the last bit."""
     m = _case(tmp_path, Effects(), seed=4)
     d = diagnose(m, None, settings=FAST, progress=False)
     assert FAST.parallel_candidates == 2
-    assert d.report["selected"] == []
+    assert d.report["selected"] == [] and d.report["crossfit"] is None
     assert all(not c["significant"] for c in d.report["candidates"])
     one = diagnose(m, None, settings=dc.replace(FAST, parallel_candidates=1), progress=False)
     assert {k: v for k, v in one.report.items() if k != "timing_s"} == {

@@ -76,8 +76,14 @@ def _benchmark(args: argparse.Namespace) -> int:
     )
     print(
         f"top-1 {s['top1']:.0%}{detect}, false alarms {s['false_alarm_rate']:.0%}, median "
-        f"shrink {s['median_shrink']:.1%} (the truth's own model: "
-        f"{s['median_oracle_shrink']:.1%}), median {s['median_seconds_per_case']:.0f} s per "
+        f"shrink {s['median_shrink']:.1%}"
+        + (
+            ""
+            if s["median_crossfit_shrink"] is None
+            else f", cross-fitted {s['median_crossfit_shrink']:.1%}"
+        )
+        + f" (the truth's own model: {s['median_oracle_shrink']:.1%}), median "
+        f"{s['median_seconds_per_case']:.0f} s per "
         f"case; wrote {args.out}/benchmark.md"
     )
     return 0

@@ -47,6 +47,8 @@ __all__ = [
     "DiagnosisSettings",
     "Fit",
     "FitProblem",
+    "crossfit_folds",
+    "crossfit_models",
     "diagnose_experiments",
     "experiment_floors_m",
     "experiment_kind",
@@ -106,6 +108,10 @@ class DiagnosisSettings:
     seed: int = 0
     #: Threads of each batch of simulations (0: one per CPU).
     workers: int = 0
+    #: Folds of the final cross-fit over the validation experiments (report ``crossfit``;
+    #: 0 turns it off): each validation experiment judged by the nominal and the selected
+    #: model refitted on all the other experiments.
+    crossfit_folds: int = 3
     #: Candidates fitted at once within a round (Python threads; each fit's simulations
     #: still run as batches on ``workers`` threads). The results do not depend on it.
     parallel_candidates: int = 2
@@ -1044,6 +1050,7 @@ def diagnose_experiments(
         "kind_floors": st.kind_floors,
         "rounds": rounds,
         "selected": selected,
+        "selected_effects": list(ctx.selected_effects),
         "final": current_fits[0],
         "final_fits": current_fits,
         "final_validation_ms": current_ms,
@@ -1081,6 +1088,91 @@ def _concurrently(
         outcomes = pool.map(one, items) if threads > 1 else map(one, items)
         for (i, cand), (r, exc, dt) in zip(items, outcomes, strict=True):
             yield i, cand, r, exc, dt
+
+
+def crossfit_folds(n_train: int, n_validate: int, k: int) -> list[tuple[list[int], list[int]]]:
+    """The folds of :func:`crossfit_models`: ``(training indices, judged indices)`` into the
+    list training + validation experiments. Fold ``j`` judges the validation experiments
+    ``j, j + k, j + 2k, …`` and trains on every other experiment (round robin, so that each
+    fold holds a mix of the validation kinds); every validation experiment is judged once."""
+    k = max(1, min(k, n_validate))
+    out = []
+    for j in range(k):
+        judged = [n_train + i for i in range(j, n_validate, k)]
+        out.append(([i for i in range(n_train + n_validate) if i not in judged], judged))
+    return out
+
+
+def crossfit_models(
+    nominal: System,
+    free: Sequence[tuple[str, Param]],
+    set_free: Callable[[System, Mapping[str, float]], System],
+    train: Sequence[Experiment],
+    validate: Sequence[Experiment],
+    effects: Sequence[tuple[Candidate, Sequence[float]]],
+    warm_nominal: Mapping[str, float],
+    warm_final: Mapping[str, float],
+    *,
+    k: int,
+    adapt: Adapt,
+    settings: DiagnosisSettings,
+) -> list[tuple[list[Experiment], System, System]]:
+    """Cross-fitting of the nominal and the selected model over the validation experiments:
+    for each fold of :func:`crossfit_folds`, both models are refitted (one local fit from
+    the diagnosis's fitted values: the free nominal parameters, and for the selected model
+    also every selected effect's continuous parameters; a delay keeps its setting) on the
+    training experiments plus the other folds' validation experiments. Returns, per fold,
+    the experiments it judges and the two refitted systems. Each validation experiment is
+    judged by models whose fit never saw it, fitted on nearly all the data, as a user would
+    recalibrate before using the model: the gap they leave is the shrink to expect then."""
+    exps = list(train) + list(validate)
+    nf = len(free)
+
+    def nominal_problem(training: list[Experiment]) -> FitProblem:
+        params = [(n, dataclasses.replace(p, initial=warm_nominal[n])) for n, p in free]
+
+        def build(values: Sequence[float]) -> System:
+            return set_free(nominal, {n: v for (n, _), v in zip(free, values, strict=True)})
+
+        return FitProblem(params, build, training, settings.workers, adapt)
+
+    def final_problem(training: list[Experiment]) -> FitProblem:
+        params = [(n, dataclasses.replace(p, initial=warm_final[n])) for n, p in free]
+        for cand, values in effects:
+            if not cand.discrete:
+                params += [
+                    (f"{cand.name}.{q.name}", dataclasses.replace(q, initial=float(v)))
+                    for q, v in zip(cand.params, values, strict=True)
+                ]
+
+        def build(values: Sequence[float]) -> System:
+            s = set_free(nominal, {n: v for (n, _), v in zip(free, values[:nf], strict=True)})
+            at = nf
+            for cand, fitted in effects:
+                if cand.discrete:
+                    s = cand.apply(s, fitted)
+                else:
+                    s = cand.apply(s, values[at : at + len(cand.params)])
+                    at += len(cand.params)
+            return s
+
+        return FitProblem(params, build, training, settings.workers, adapt)
+
+    jobs = []
+    for tr, judged in crossfit_folds(len(train), len(validate), k):
+        training = [exps[i] for i in tr]
+        jobs.append((training, [exps[i] for i in judged]))
+
+    def fit_pair(job: tuple[list[Experiment], list[Experiment]]) -> tuple[System, System]:
+        training, _ = job
+        before = nominal_problem(training).fit(1, settings, settings.seed)
+        after = final_problem(training).fit(1, settings, settings.seed) if effects else before
+        return before.system, after.system
+
+    threads = max(1, min(settings.parallel_candidates, len(jobs)))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        pairs = list(pool.map(fit_pair, jobs) if threads > 1 else map(fit_pair, jobs))
+    return [(judged, b, a) for (_, judged), (b, a) in zip(jobs, pairs, strict=True)]
 
 
 def _refit_control(

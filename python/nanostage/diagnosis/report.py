@@ -381,6 +381,25 @@ def markdown_report(
             )
         else:
             out.append(f"{_md_escape(str(sel))}\n")
+    cf = report.get("crossfit")
+    if isinstance(cf, Mapping) and _num(cf.get("shrink")) is not None:
+        b, a = _num(cf.get("gap_before_rms_m")), _num(cf.get("gap_after_rms_m"))
+        out.append("## Cross-fit\n")
+        out.append(
+            f"Each validation experiment judged by the nominal and the selected model "
+            f"refitted on all the other experiments ({cf.get('folds')} folds): the gap "
+            f"that remains once the model is recalibrated on all the data.\n"
+        )
+        out.append(
+            _table(
+                ["", "Validation gap [nm]"],
+                [
+                    ["nominal", "—" if b is None else f"{b * 1e9:.1f}"],
+                    ["selected", "—" if a is None else f"{a * 1e9:.1f}"],
+                    ["shrink", f"{float(cf['shrink']):.1%}"],
+                ],
+            )
+        )
     feats = _features_table(before, after)
     if feats:
         out.append("## Response features, measured vs simulated\n")
@@ -393,7 +412,7 @@ def markdown_report(
     if lc:
         out.append("## Limit cycles in hold\n")
         out.append(lc)
-    known = {"gap_before", "gap_after", "candidates", "selected", "indistinguishable"}
+    known = {"gap_before", "gap_after", "candidates", "selected", "indistinguishable", "crossfit"}
     extra = [
         [_md_escape(str(k)), _fmt(str(k), v)]
         for k, v in report.items()

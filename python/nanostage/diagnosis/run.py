@@ -36,10 +36,11 @@ from .engine import (
     CandidateResult,
     DiagnosisSettings,
     Fit,
+    _progress,
     align_holds,
+    crossfit_models,
     diagnose_experiments,
     simulate_readings_and_commands,
-    simulated_mean_reading,
 )
 from .gap import analyse_gap
 from .manifest import Manifest, get_path, load_manifest, replace_paths
@@ -349,14 +350,20 @@ def diagnose(
         progress=progress,
     )
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
+    if st.crossfit_folds > 0 and out["selected"]:
+        _progress(
+            f"diagnosis: cross-fitting the nominal and the selected model "
+            f"({st.crossfit_folds} folds of the validation experiments)",
+            progress,
+        )
+    report["crossfit"] = _crossfit(setup, out, st, _lead(nominal))
     report["manifest"] = str(m.path)
     written = None
     if out_dir is not None:
         val = _validation_order(folds)
         sims = [
-            simulated_mean_reading(adapt(f.system, e), e)
-            for f, (_, v) in zip(out["final_fits"], folds, strict=True)
-            for e in v
+            reading
+            for reading, _ in _simulated_pairs([f.system for f in out["final_fits"]], folds, adapt)
         ]
         gap_exps = [
             {
@@ -395,6 +402,17 @@ def _validation_order(
     return [e for _, v in folds for e in v]
 
 
+def _simulated_pairs(
+    systems: Sequence[System],
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
+    adapt: Any,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Simulated (mean reading, command) of the validation experiments, each fold's by its
+    system, all in one batch of the core."""
+    pairs = [(adapt(s, e), e) for s, (_, v) in zip(systems, folds, strict=True) for e in v]
+    return simulate_readings_and_commands([a for a, _ in pairs], [e for _, e in pairs])
+
+
 def _simulated(
     fits: Sequence[Fit | System],
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
@@ -403,15 +421,58 @@ def _simulated(
     """Simulated mean readings of the validation experiments (each fold's by its fit's
     system, or the given system), hold windows rank-aligned to the measurement (so that
     measured − simulated is the engine's gap residual)."""
-    out = []
-    for f, (_, v) in zip(fits, folds, strict=True):
-        system = f.system if isinstance(f, Fit) else f
-        sims = simulate_readings_and_commands([adapt(system, e) for e in v], v)
-        out += [
-            align_holds(e.position_m, reading, e.reference_m)
-            for e, (reading, _) in zip(v, sims, strict=True)
-        ]
-    return out
+    systems = [f.system if isinstance(f, Fit) else f for f in fits]
+    return [
+        align_holds(e.position_m, reading, e.reference_m)
+        for e, (reading, _) in zip(
+            _validation_order(folds), _simulated_pairs(systems, folds, adapt), strict=True
+        )
+    ]
+
+
+def _crossfit(
+    setup: _Setup, out: Mapping[str, Any], st: DiagnosisSettings, lead_m: float | None
+) -> dict[str, Any] | None:
+    """The report's ``crossfit``: the validation gap of the nominal and of the selected
+    model when each validation experiment is judged by models refitted on all the other
+    experiments (:func:`~nanostage.diagnosis.engine.crossfit_models`); None when it is off,
+    nothing was selected (the shrink is 0) or the manifest has several folds (then every
+    fold already trains on all but its validation experiments)."""
+    if st.crossfit_folds <= 0 or not out["selected"] or len(setup.folds) != 1:
+        return None
+    train, validate = setup.folds[0]
+    models = crossfit_models(
+        setup.nominal,
+        setup.free,
+        setup.set_free,
+        train,
+        validate,
+        out["selected_effects"],
+        {n: out["nominal_fits"][0].values[n] for n, _ in setup.free},
+        {n: out["final_fits"][0].values[n] for n, _ in setup.free},
+        k=st.crossfit_folds,
+        adapt=setup.adapt,
+        settings=st,
+    )
+    by_name: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for judged, before, after in models:
+        fold: list[tuple[Sequence[Experiment], Sequence[Experiment]]] = [([], judged)]
+        sb = _simulated([before], fold, setup.adapt)
+        sa = _simulated([after], fold, setup.adapt)
+        for e, b, a in zip(judged, sb, sa, strict=True):
+            by_name[e.name] = (b, a)
+    gap_b = _gap(validate, [by_name[e.name][0] for e in validate], lead_m)
+    gap_a = _gap(validate, [by_name[e.name][1] for e in validate], lead_m)
+    rb, ra = float(gap_b["total_rms_m"]), float(gap_a["total_rms_m"])
+    return {
+        "folds": len(models),
+        "judged": [[e.name for e in judged] for judged, _, _ in models],
+        "gap_before_rms_m": rb,
+        "gap_after_rms_m": ra,
+        "shrink": 1.0 - ra / rb if rb > 0 else 0.0,
+        "by_segment_before": gap_b["by_segment"],
+        "by_segment_after": gap_a["by_segment"],
+    }
 
 
 def model_gap(manifest: str | Path | Manifest, system: System) -> dict[str, Any]:
