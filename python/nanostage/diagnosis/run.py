@@ -15,8 +15,10 @@ The report (``report.json``; schema in docs/diagnosis.md) has at least
     the validation gap with the selected effects (same form as ``gap_before``);
 
 plus ``indistinguishable`` (selected effect → candidates the validation data cannot tell
-from it), ``gap_best_single``, ``noise_floor_rms_m``, ``forward_selection``, ``evidence``,
-``advice``, ``skipped``, ``nominal_parameters``, ``unexplained_rms_m`` and ``timing_s``.
+from it), ``crossfit`` (the shrink when each validation experiment is judged by the nominal
+and the selected model refitted on all the other experiments), ``gap_best_single``,
+``noise_floor_rms_m``, ``forward_selection``, ``evidence``, ``advice``, ``skipped``,
+``nominal_parameters``, ``unexplained_rms_m`` and ``timing_s``.
 """
 
 from __future__ import annotations
