@@ -181,40 +181,47 @@ class FitProblem:
         self.adapt = adapt
         self.n_evaluations = 0
         self.scale_m = 1e-7
-        #: Mean-square command residual of each experiment of the last system simulated, V²
-        #: (None where the experiment has no measured command).
-        self.last_command_ms: list[float | None] = []
         #: :func:`gap_plan` of each experiment (by name), computed on first use.
         self._plans: dict[str, list[HoldPlan]] = {}
 
     def residuals(self, system: System, experiments: Sequence[Experiment]) -> list[FloatArray]:
-        """Per-experiment gap (measured − simulated mean reading). The command residuals of
-        experiments with a measured command are kept in ``last_command_ms`` (V², None where
-        the experiment has no command)."""
+        """Per-experiment gap (measured − simulated mean reading)."""
         return self.residuals_of([system], experiments)[0]
+
+    def residuals_and_commands(
+        self, system: System, experiments: Sequence[Experiment]
+    ) -> tuple[list[FloatArray], list[float | None]]:
+        """:meth:`residuals`, and each experiment's mean-square command residual (V², None
+        where the experiment has no measured command)."""
+        return self._simulate([system], experiments)[0]
 
     def residuals_of(
         self, systems: Sequence[System], experiments: Sequence[Experiment]
     ) -> list[list[FloatArray]]:
         """:meth:`residuals` of several systems, all their simulations in one batch of the
-        core (``last_command_ms`` is that of the last system)."""
+        core."""
+        return [gaps for gaps, _ in self._simulate(systems, experiments)]
+
+    def _simulate(
+        self, systems: Sequence[System], experiments: Sequence[Experiment]
+    ) -> list[tuple[list[FloatArray], list[float | None]]]:
         n = len(experiments)
         pairs = [(self.adapt(s, e), e) for s in systems for e in experiments]
         sims = simulate_readings_and_commands(
             [a for a, _ in pairs], [e for _, e in pairs], self.threads
         )
-        out: list[list[FloatArray]] = []
+        out = []
         for j in range(len(systems)):
-            gaps = []
-            self.last_command_ms = []
-            for e, (reading, command) in zip(experiments, sims[j * n : (j + 1) * n], strict=True):
+            gaps: list[FloatArray] = []
+            command: list[float | None] = []
+            for e, (reading, cmd) in zip(experiments, sims[j * n : (j + 1) * n], strict=True):
                 if e.name not in self._plans:
                     self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
                 gaps.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
-                self.last_command_ms.append(
-                    None if e.command_v is None else float(np.mean((e.command_v - command) ** 2))
+                command.append(
+                    None if e.command_v is None else float(np.mean((e.command_v - cmd) ** 2))
                 )
-            out.append(gaps)
+            out.append((gaps, command))
         return out
 
     def _failed_vector(self) -> FloatArray:
@@ -874,7 +881,7 @@ class _Ctx:
                 else (0 if warm else self.st.scan_points_nominal),
                 scan_starts=scan_starts,
             )
-            res = prob.residuals(f.system, validate)
+            res, val_command = prob.residuals_and_commands(f.system, validate)
             fits.append(f)
             residuals.append(res)
             ms += [float(np.mean(r**2)) for r in res]
@@ -883,7 +890,7 @@ class _Ctx:
                 units += [
                     w * float(np.sum(r[a:b] ** 2)) / len(r) for a, b in move_units(e.reference_m)
                 ]
-            command += prob.last_command_ms
+            command += val_command
         return fits, np.array(ms), residuals, command, np.array(units)
 
 
