@@ -261,19 +261,19 @@ class FitProblem:
             results = list(self.residuals_of(valid, self.experiments))
         except (RuntimeError, ValueError):
             # One failed run fails its whole batch: tell which, one system at a time.
-            results = []
-            for system in valid:
-                try:
-                    one = self.residuals(system, self.experiments) if len(valid) > 1 else None
-                    results.append(one)
-                except (RuntimeError, ValueError):
-                    results.append(None)
+            results = [None] if len(valid) == 1 else [self._residuals_or_none(v) for v in valid]
         it = iter(results)
         out = []
         for maybe in systems:
             r = None if maybe is None else next(it)
             out.append(self._failed_vector() if r is None else self._scaled(r))
         return out
+
+    def _residuals_or_none(self, system: System) -> list[FloatArray] | None:
+        try:
+            return self.residuals(system, self.experiments)
+        except (RuntimeError, ValueError):
+            return None
 
     def _batch_map(
         self, fun: Callable[[FloatArray], FloatArray], points: Iterable[FloatArray]
@@ -785,8 +785,6 @@ class _Ctx:
     folds: Sequence[Split]
     floor: float
     st: DiagnosisSettings
-    #: Simulation threads per batch.
-    threads: int
     adapt: Adapt
     #: The nominal model the free parameters are set on.
     nominal: System
@@ -856,7 +854,7 @@ class _Ctx:
                 free + list(params),
                 self.builder(base, apply_extra),
                 train,
-                self.threads,
+                self.st.workers,
                 self.adapt,
             )
             # Two starts at least: the warm values, and the manifest's (prior) values.
@@ -933,7 +931,6 @@ def diagnose_experiments(
         folds=folds,
         floor=floor,
         st=st,
-        threads=st.workers,
         weights=weights,
         adapt=adapt or (lambda s, e: s),
         nominal=nominal,
@@ -1135,17 +1132,13 @@ def crossfit_models(
     exps = list(train) + list(validate)
     nf = len(free)
 
-    def nominal_problem(training: list[Experiment]) -> FitProblem:
-        params = [(n, dataclasses.replace(p, initial=warm_nominal[n])) for n, p in free]
-
-        def build(values: Sequence[float]) -> System:
-            return set_free(nominal, {n: v for (n, _), v in zip(free, values, strict=True)})
-
-        return FitProblem(params, build, training, settings.workers, adapt)
-
-    def final_problem(training: list[Experiment]) -> FitProblem:
-        params = [(n, dataclasses.replace(p, initial=warm_final[n])) for n, p in free]
-        for cand, values in effects:
+    def problem(
+        training: list[Experiment],
+        warm: Mapping[str, float],
+        with_effects: Sequence[tuple[Candidate, Sequence[float]]],
+    ) -> FitProblem:
+        params = [(n, dataclasses.replace(p, initial=warm[n])) for n, p in free]
+        for cand, values in with_effects:
             if not cand.discrete:
                 params += [
                     (f"{cand.name}.{q.name}", dataclasses.replace(q, initial=float(v)))
@@ -1155,7 +1148,7 @@ def crossfit_models(
         def build(values: Sequence[float]) -> System:
             s = set_free(nominal, {n: v for (n, _), v in zip(free, values[:nf], strict=True)})
             at = nf
-            for cand, fitted in effects:
+            for cand, fitted in with_effects:
                 if cand.discrete:
                     s = cand.apply(s, fitted)
                 else:
@@ -1172,8 +1165,12 @@ def crossfit_models(
 
     def fit_pair(job: tuple[list[Experiment], list[Experiment]]) -> tuple[System, System]:
         training, _ = job
-        before = nominal_problem(training).fit(1, settings, settings.seed)
-        after = final_problem(training).fit(1, settings, settings.seed) if effects else before
+        before = problem(training, warm_nominal, ()).fit(1, settings, settings.seed)
+        after = (
+            problem(training, warm_final, effects).fit(1, settings, settings.seed)
+            if effects
+            else before
+        )
         return before.system, after.system
 
     threads = max(1, min(settings.parallel_candidates, len(jobs)))

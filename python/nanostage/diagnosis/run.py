@@ -352,13 +352,7 @@ def diagnose(
         progress=progress,
     )
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
-    if st.crossfit_folds > 0 and out["selected"]:
-        _progress(
-            f"diagnosis: cross-fitting the nominal and the selected model "
-            f"({st.crossfit_folds} folds of the validation experiments)",
-            progress,
-        )
-    report["crossfit"] = _crossfit(setup, out, st, _lead(nominal))
+    report["crossfit"] = _crossfit(setup, out, st, _lead(nominal), progress)
     report["manifest"] = str(m.path)
     written = None
     if out_dir is not None:
@@ -433,7 +427,11 @@ def _simulated(
 
 
 def _crossfit(
-    setup: _Setup, out: Mapping[str, Any], st: DiagnosisSettings, lead_m: float | None
+    setup: _Setup,
+    out: Mapping[str, Any],
+    st: DiagnosisSettings,
+    lead_m: float | None,
+    progress: bool,
 ) -> dict[str, Any] | None:
     """The report's ``crossfit``: the validation gap of the nominal and of the selected
     model when each validation experiment is judged by models refitted on all the other
@@ -442,6 +440,11 @@ def _crossfit(
     fold already trains on all but its validation experiments)."""
     if st.crossfit_folds <= 0 or not out["selected"] or len(setup.folds) != 1:
         return None
+    _progress(
+        f"diagnosis: cross-fitting the nominal and the selected model "
+        f"({st.crossfit_folds} folds of the validation experiments)",
+        progress,
+    )
     train, validate = setup.folds[0]
     models = crossfit_models(
         setup.nominal,
@@ -456,15 +459,19 @@ def _crossfit(
         adapt=setup.adapt,
         settings=st,
     )
-    by_name: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for judged, before, after in models:
-        fold: list[tuple[Sequence[Experiment], Sequence[Experiment]]] = [([], judged)]
-        sb = _simulated([before], fold, setup.adapt)
-        sa = _simulated([after], fold, setup.adapt)
-        for e, b, a in zip(judged, sb, sa, strict=True):
-            by_name[e.name] = (b, a)
-    gap_b = _gap(validate, [by_name[e.name][0] for e in validate], lead_m)
-    gap_a = _gap(validate, [by_name[e.name][1] for e in validate], lead_m)
+    # Both models of every fold in one batch: the judged experiments once with the nominal
+    # refit, once with the selected one.
+    folds: list[tuple[Sequence[Experiment], Sequence[Experiment]]] = [
+        ([], judged) for judged, _, _ in models for _ in range(2)
+    ]
+    sims = iter(_simulated([m for _, b, a in models for m in (b, a)], folds, setup.adapt))
+    sim_b: dict[str, np.ndarray] = {}
+    sim_a: dict[str, np.ndarray] = {}
+    for judged, _, _ in models:
+        sim_b.update({e.name: next(sims) for e in judged})
+        sim_a.update({e.name: next(sims) for e in judged})
+    gap_b = _gap(validate, [sim_b[e.name] for e in validate], lead_m)
+    gap_a = _gap(validate, [sim_a[e.name] for e in validate], lead_m)
     rb, ra = float(gap_b["total_rms_m"]), float(gap_a["total_rms_m"])
     return {
         "folds": len(models),
