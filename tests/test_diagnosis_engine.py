@@ -45,6 +45,7 @@ from nanostage.diagnosis.engine import (
     Fit,
     FitProblem,
     _best_shift,
+    _Ctx,
     _judge,
     _refit_control,
     _verdict,
@@ -217,6 +218,66 @@ def test_batched_evaluations_equal_one_at_a_time(
     assert batched.values == alone.values
     assert batched.train_rms_m == alone.train_rms_m
     assert batched.n_evaluations == alone.n_evaluations
+
+
+def test_screening_fits_only_the_discrete_setting_that_starts_best(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A discrete candidate (a delay) is screened by fitting only the setting whose model at
+    the fits' starts (the warm and the manifest's free values) has the smallest training
+    gap; refining fits every setting. On data with a hidden two-sample computation delay the
+    setting chosen at the start is 2, the one-at-a-time start gaps agree, and the screened
+    result has the refined result's setting. When every start fails to simulate, every
+    setting is fitted (and reports why)."""
+    m = _case(tmp_path, Effects(computation_delay_samples=2), seed=5)
+    man = load_manifest(m)
+    exps = [e for _, e in man.experiments()]
+    nominal = man.system()
+    name = "plant.dahl.coulomb_force_n"
+    free = [(name, Param(name="f", unit="N", lower=20, upper=40, initial=30.4))]
+    ctx = _Ctx(
+        free=free,
+        set_free=lambda s, v: replace_paths(s, dict(v)),
+        folds=[(exps[:2], exps[2:])],
+        floor=1e-8,
+        st=FAST,
+        adapt=lambda s, e: s,
+        nominal=nominal,
+        warm=[{name: 27.0}],
+    )
+    (cand,), _ = applicable_candidates(nominal, ["computation_delay"])
+    assert cand.discrete == (1, 2, 3)
+    chosen = ctx.best_start_setting(nominal, cand)
+
+    def start_ms(k: int, f: float) -> float:
+        s = cand.apply(replace_paths(nominal, {name: f}), [k])
+        prob = FitProblem(free, lambda v: s, exps[:2], 1, lambda s, e: s)
+        return float(np.mean([np.mean(r**2) for r in prob.residuals(s, exps[:2])]))
+
+    costs = {k: min(start_ms(k, 27.0), start_ms(k, 30.4)) for k in cand.discrete}
+    assert chosen == (min(costs, key=costs.__getitem__),) == (2,)
+
+    calls: list[int] = []
+    real = _Ctx.fit_and_validate
+
+    def counting(self: _Ctx, *args: Any, **kw: Any) -> Any:
+        calls.append(1)
+        return real(self, *args, **kw)
+
+    monkeypatch.setattr(_Ctx, "fit_and_validate", counting)
+    base_ms = np.ones(2) * 1e-12
+    screened = _judge(cand, nominal, base_ms, [None, None], None, ctx, 0, screen=True)
+    assert len(calls) == 1 and screened.setting == 2
+    calls.clear()
+    refined = _judge(cand, nominal, base_ms, [None, None], None, ctx, 0, screen=False)
+    assert len(calls) == 3 and refined.setting == 2
+
+    def fail(*_: object) -> None:
+        raise RuntimeError("integrator failed")
+
+    monkeypatch.setattr(FitProblem, "residuals_of", fail)
+    monkeypatch.setattr(FitProblem, "_residuals_or_none", lambda self, s: None)
+    assert ctx.best_start_setting(nominal, cand) == (1, 2, 3)
 
 
 def test_benchmark_design_reference() -> None:

@@ -824,6 +824,37 @@ class _Ctx:
 
         return build
 
+    def best_start_setting(self, base: System, cand: Candidate) -> tuple[int, ...]:
+        """The setting of a discrete candidate whose model at the start of its fits (each
+        fold's warm free values, and the manifest's values) has the smallest training gap,
+        summed over folds, as a one-element tuple; all its settings when every start fails
+        to simulate (their fits then report why). All the settings' starts of a fold are
+        simulated as one batch."""
+        cost = np.zeros(len(cand.discrete))
+        prior = {n: p.initial for n, p in self.free}
+        for i, (train, _) in enumerate(self.folds):
+            warm = self.warm[i] if i < len(self.warm) else prior
+            starts = [warm] if warm == prior else [warm, prior]
+            systems: list[System] = []
+            for k in cand.discrete:
+
+                def fixed(s: System, v: Sequence[float], k: int = k) -> System:
+                    return cand.apply(s, [k])
+
+                build = self.builder(base, fixed)
+                systems += [build([st[n] for n, _ in self.free]) for st in starts]
+            prob = FitProblem(self.free, lambda v: base, train, self.st.workers, self.adapt)
+            try:
+                res: list[list[FloatArray] | None] = list(prob.residuals_of(systems, train))
+            except (RuntimeError, ValueError):
+                # One failed run fails its whole batch: tell which, one system at a time.
+                res = [prob._residuals_or_none(s) for s in systems]
+            ms = [math.inf if r is None else _rms(r) ** 2 for r in res]
+            cost += np.min(np.reshape(ms, (len(cand.discrete), len(starts))), axis=1)
+        if not np.isfinite(cost).any():
+            return cand.discrete
+        return (cand.discrete[int(np.argmin(cost))],)
+
     def fit_and_validate(
         self,
         base: System,
@@ -1257,7 +1288,11 @@ def _judge(
     setting: int | None = None
     if cand.discrete:
         best: tuple[list[Fit], FloatArray, list[float | None], int, FloatArray] | None = None
-        for k in cand.discrete:
+        # Screening fits only the setting whose start fits the training experiments best
+        # (each setting's fit costs as much as a whole continuous candidate's); refining
+        # fits every setting.
+        ks = ctx.best_start_setting(base, cand) if screen else cand.discrete
+        for k in ks:
 
             def fixed(s: System, v: Sequence[float], k: int = k) -> System:
                 return cand.apply(s, [k])
