@@ -10,8 +10,21 @@ from . import iso230_2
 
 
 def _reproduce(args: argparse.Namespace) -> int:
+    from .paper_campaigns import CampaignSettings, write_paper_campaigns
     from .reproduce import reproduce
 
+    campaigns = None
+    if args.campaigns:
+        # Checked before any work.
+        try:
+            campaigns = CampaignSettings(
+                n_trials=args.campaign_trials,
+                seed=args.campaign_seed,
+                backlash_width_m=args.campaign_backlash_m,
+            )
+        except ValueError as exc:
+            print(f"nanostage reproduce: {exc}", file=sys.stderr)
+            return 2
     summary = reproduce(args.out, plot=not args.no_plot)
     print(summary["table_markdown"])
     slew = summary["slew_at_voltage_limit"]
@@ -24,12 +37,10 @@ def _reproduce(args: argparse.Namespace) -> int:
         f"compute time: {summary['compute_time_s']:.3f} s; wrote {args.out}/summary.json"
         + ("" if args.no_plot else f" and {args.out}/steps.png")
     )
-    if args.campaigns:
-        from .paper_campaigns import CampaignSettings, write_paper_campaigns
-
+    if campaigns is not None:
         res = write_paper_campaigns(
             args.out,
-            CampaignSettings(n_trials=args.campaign_trials, seed=args.campaign_seed),
+            campaigns,
             threads=args.threads,
             log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
         )
@@ -186,6 +197,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     rep.add_argument(
         "--campaign-seed", type=int, default=0, help="campaign seed with --campaigns (default 0)"
+    )
+    rep.add_argument(
+        "--campaign-backlash-m",
+        type=float,
+        default=0.0,
+        help="gearhead backlash width in the campaigns' model [m] (default 0: the paper's "
+        "model; e.g. 5e-6)",
     )
     rep.add_argument(
         "--threads", type=int, default=None, help="threads of the campaigns (default: all cores)"
