@@ -57,6 +57,7 @@ from nanostage.diagnosis.engine import (
     hold_intervals,
     move_units,
     noise_floor_m,
+    refine_names,
     with_starts,
 )
 from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
@@ -278,6 +279,31 @@ def test_screening_fits_only_the_discrete_setting_that_starts_best(
     monkeypatch.setattr(FitProblem, "residuals_of", fail)
     monkeypatch.setattr(FitProblem, "_residuals_or_none", lambda self, s: None)
     assert ctx.best_start_setting(nominal, cand) == (1, 2, 3)
+
+
+def test_refine_the_best_friction_model_outside_the_best_four() -> None:
+    """The refits of a round: the best four screened candidates, and the best-screened
+    friction-model candidate outside them (one at most; none without one, or when turned
+    off)."""
+
+    def ranked(*names: str) -> list[CandidateResult]:
+        return [cast(CandidateResult, SimpleNamespace(effect=n)) for n in names]
+
+    st = DiagnosisSettings()
+    order = ranked(
+        "backlash",
+        "lugre",
+        "drive_compliance",
+        "computation_delay",
+        "sensor_delay",
+        "gms",
+        "coulomb_viscous",
+    )
+    top4 = ["backlash", "lugre", "drive_compliance", "computation_delay"]
+    assert refine_names(order, st) == [*top4, "gms"]
+    assert refine_names(order, dc.replace(st, refine_best_friction_model=False)) == top4
+    assert refine_names(order[:5], st) == top4
+    assert refine_names(ranked("gms", "offset_force"), st) == ["gms", "offset_force"]
 
 
 def test_benchmark_design_reference() -> None:
