@@ -14,7 +14,8 @@ Method:
 * System: :func:`nanostage.presets.seed` with the Table 1 gains of each step size, plus
   :class:`~nanostage.effects.StochasticFriction` ``(level_spread=s)`` (one setting: a per-
   trial factor on every friction level, log-normal with mean 1; no within-trial
-  fluctuation).
+  fluctuation); with ``CampaignSettings.backlash_width_m`` also the gearhead backlash (a
+  check of that explanation, docs/campaigns.md).
 * A trial is one whole test (``repeats`` steps), read with the true table position (the
   paper's interferometer). The simulated figure is the mean over ``n_trials`` trials of the
   trial's A↑ (or R↑), since the paper's number is one such test.
