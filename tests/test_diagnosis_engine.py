@@ -277,7 +277,6 @@ def test_screening_fits_only_the_discrete_setting_that_starts_best(
         raise RuntimeError("integrator failed")
 
     monkeypatch.setattr(FitProblem, "residuals_of", fail)
-    monkeypatch.setattr(FitProblem, "_residuals_or_none", lambda self, s: None)
     assert ctx.best_start_setting(nominal, cand) == (1, 2, 3)
 
 

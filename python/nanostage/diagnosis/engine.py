@@ -261,25 +261,23 @@ class FitProblem:
                 systems.append(self.build(values))
             except ValueError:
                 systems.append(None)
-        valid = [s for s in systems if s is not None]
-        results: list[list[FloatArray] | None]
-        try:
-            results = list(self.residuals_of(valid, self.experiments))
-        except (RuntimeError, ValueError):
-            # One failed run fails its whole batch: tell which, one system at a time.
-            results = [None] if len(valid) == 1 else [self._residuals_or_none(v) for v in valid]
-        it = iter(results)
+        it = iter(self.residuals_or_none([s for s in systems if s is not None]))
         out = []
         for maybe in systems:
             r = None if maybe is None else next(it)
             out.append(self._failed_vector() if r is None else self._scaled(r))
         return out
 
-    def _residuals_or_none(self, system: System) -> list[FloatArray] | None:
+    def residuals_or_none(self, systems: Sequence[System]) -> list[list[FloatArray] | None]:
+        """:meth:`residuals_of` on the problem's experiments, None for a system whose
+        simulation fails. One failed run fails its whole batch: the batch is then run again
+        one system at a time to tell which."""
         try:
-            return self.residuals(system, self.experiments)
+            return list(self.residuals_of(systems, self.experiments))
         except (RuntimeError, ValueError):
-            return None
+            if len(systems) == 1:
+                return [None]
+            return [self.residuals_or_none([s])[0] for s in systems]
 
     def _batch_map(
         self, fun: Callable[[FloatArray], FloatArray], points: Iterable[FloatArray]
@@ -841,21 +839,14 @@ class _Ctx:
         for i, (train, _) in enumerate(self.folds):
             warm = self.warm[i] if i < len(self.warm) else prior
             starts = [warm] if warm == prior else [warm, prior]
-            systems: list[System] = []
-            for k in cand.discrete:
-
-                def fixed(s: System, v: Sequence[float], k: int = k) -> System:
-                    return cand.apply(s, [k])
-
-                build = self.builder(base, fixed)
-                systems += [build([st[n] for n, _ in self.free]) for st in starts]
+            systems = [
+                self.builder(base, _at_setting(cand, k))([st[n] for n, _ in self.free])
+                for k in cand.discrete
+                for st in starts
+            ]
+            # Only its batch evaluation is used: the systems are built above.
             prob = FitProblem(self.free, lambda v: base, train, self.st.workers, self.adapt)
-            try:
-                res: list[list[FloatArray] | None] = list(prob.residuals_of(systems, train))
-            except (RuntimeError, ValueError):
-                # One failed run fails its whole batch: tell which, one system at a time.
-                res = [prob._residuals_or_none(s) for s in systems]
-            ms = [math.inf if r is None else _rms(r) ** 2 for r in res]
+            ms = [math.inf if r is None else _rms(r) ** 2 for r in prob.residuals_or_none(systems)]
             cost += np.min(np.reshape(ms, (len(cand.discrete), len(starts))), axis=1)
         if not np.isfinite(cost).any():
             return cand.discrete
@@ -1290,6 +1281,15 @@ def _effect_values(cand: Candidate, best: CandidateResult) -> list[float]:
     return [best.fit.values[f"{cand.name}.{p.name}"] for p in cand.params]
 
 
+def _at_setting(cand: Candidate, k: int) -> Callable[[System, Sequence[float]], System]:
+    """A discrete candidate's ``apply`` fixed at setting ``k`` (it takes no values)."""
+
+    def apply(s: System, v: Sequence[float]) -> System:
+        return cand.apply(s, [k])
+
+    return apply
+
+
 def _judge(
     cand: Candidate,
     base: System,
@@ -1312,12 +1312,8 @@ def _judge(
         # fits every setting.
         ks = ctx.best_start_setting(base, cand) if screen else cand.discrete
         for k in ks:
-
-            def fixed(s: System, v: Sequence[float], k: int = k) -> System:
-                return cand.apply(s, [k])
-
             fits, ms, _, cmd, units = ctx.fit_and_validate(
-                base, (), fixed, 1, st.seed + index, screen
+                base, (), _at_setting(cand, k), 1, st.seed + index, screen
             )
             train = float(np.mean([f.train_rms_m for f in fits]))
             if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
