@@ -55,8 +55,10 @@ from nanostage.diagnosis.engine import (
     experiment_kind,
     gap_residual,
     hold_intervals,
+    log_occam_factor,
     move_units,
     noise_floor_m,
+    pick_winner,
     refine_names,
     with_starts,
 )
@@ -621,6 +623,12 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     assert best["effect"] == "asymmetric_friction" and best["significant"]
     assert best["shrink"] > 0.5
     assert abs(best["parameters"]["asymmetric_friction.asymmetry"]["value"] - 0.3) < 0.08
+    # Its Occam factor (the tie-break) from its standard error and its bounds (±0.6).
+    se = best["parameters"]["asymmetric_friction.asymmetry"]["std_error"]
+    assert best["log_occam_factor"] == pytest.approx(
+        np.log(min(1.0, se * np.sqrt(2 * np.pi) / 1.2))
+    )
+    assert best["log_occam_factor"] < 0.0
     assert r["gap_after"]["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
     # The gap of a given model, nothing fitted, is the report's measure: the selected model
     # (one fold) gives gap_after exactly; the truth itself leaves only the noise.
@@ -669,6 +677,63 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
         "asymmetric_friction": ["offset_force"]
     }
     assert ties_of_selected(rounds, []) == {}
+
+
+def test_log_occam_factor_by_hand() -> None:
+    """Σ log min(1, σ√(2π)/w) over the candidate's own parameters (log space for a log
+    parameter), minus log of the settings of a discrete candidate; a parameter the data do
+    not constrain (σ = ∞) or whose posterior is wider than its bounds costs nothing."""
+    lin = Param(name="f", unit="N", lower=-30.0, upper=30.0, initial=0.0)
+    logp = Param(name="w", unit="m", lower=1e-7, upper=1e-4, initial=5e-6, log=True)
+    wide = Param(name="a", unit="-", lower=-0.6, upper=0.6, initial=0.0)
+    fit = Fit(
+        values={"x.f": 1.2, "x.w": 2e-5, "x.a": 0.1, "x.u": 0.3},
+        std_errors={"x.f": 0.015, "x.w": 1e-7, "x.a": 1.0, "x.u": float("inf")},
+        train_rms_m=1e-8,
+        n_evaluations=1,
+        system=presets.seed(1e-3),
+    )
+    r2pi = np.sqrt(2 * np.pi)
+    assert log_occam_factor(fit, [("x.f", lin)]) == pytest.approx(np.log(0.015 * r2pi / 60.0))
+    assert log_occam_factor(fit, [("x.w", logp)]) == pytest.approx(
+        np.log((1e-7 / 2e-5) * r2pi / np.log(1e3))
+    )
+    assert log_occam_factor(fit, [("x.a", wide), ("x.u", wide)]) == 0.0
+    assert log_occam_factor(fit, [], n_settings=4) == pytest.approx(-np.log(4))
+    both = log_occam_factor(fit, [("x.f", lin), ("x.w", logp)])
+    assert both == pytest.approx(
+        log_occam_factor(fit, [("x.f", lin)]) + log_occam_factor(fit, [("x.w", logp)])
+    )
+
+
+def test_a_tie_goes_to_the_candidate_with_the_larger_occam_factor() -> None:
+    """Among significant candidates the validation data cannot tell apart the larger Occam
+    factor wins, whatever the order of their gaps; a clearly better gap, an insignificant
+    candidate and the setting turned off keep the first significant one."""
+
+    def res(name: str, ms: list[float], occam: float, significant: bool = True) -> Any:
+        a = np.array(ms)
+        return SimpleNamespace(
+            effect=name,
+            validation_ms=a,
+            validation_rms_m=float(np.sqrt(a.mean())),
+            significant=significant,
+            log_occam=occam,
+        )
+
+    best = res("offset_force", [1.0e-14, 2.0e-14, 1.5e-14, 1.2e-14], -7.4)
+    tied = res("asymmetric_friction", [1.2e-14, 1.8e-14, 1.6e-14, 1.1e-14], -4.9)
+    far = res("backlash", [4.0e-14, 5.0e-14, 4.5e-14, 4.2e-14], -1.0)
+    weak = res("gms", [1.1e-14, 2.0e-14, 1.5e-14, 1.2e-14], -0.5, significant=False)
+    st = DiagnosisSettings()
+    assert pick_winner([best, tied, far], st) is tied
+    assert pick_winner([best, weak, far], st) is best
+    assert pick_winner([weak, best, tied], st) is tied
+    assert pick_winner([best, far], st) is best
+    assert pick_winner([best, tied, far], dc.replace(st, occam_tie_break=False)) is best
+    equal = res("stribeck", list(best.validation_ms), best.log_occam)
+    assert pick_winner([best, equal], st) is best
+    assert pick_winner([weak], st) is None
 
 
 def test_refit_control_restarts_the_model_before_from_a_candidates_free_values() -> None:

@@ -370,6 +370,12 @@ def markdown_report(
                         " — the validation data cannot tell it from "
                         + ", ".join(f"`{_md_escape(t)}`" for t in ties[s])
                         + " (see the advice)"
+                        + (
+                            "; selected by the larger Occam factor (its parameters "
+                            "pinned down to a larger share of their bounds)"
+                            if report.get("tie_break") == "occam_factor"
+                            else "; selected by the smaller validation gap"
+                        )
                         if isinstance(ties, Mapping) and ties.get(s)
                         else ""
                     )
@@ -412,7 +418,15 @@ def markdown_report(
     if lc:
         out.append("## Limit cycles in hold\n")
         out.append(lc)
-    known = {"gap_before", "gap_after", "candidates", "selected", "indistinguishable", "crossfit"}
+    known = {
+        "gap_before",
+        "gap_after",
+        "candidates",
+        "selected",
+        "indistinguishable",
+        "tie_break",
+        "crossfit",
+    }
     extra = [
         [_md_escape(str(k)), _fmt(str(k), v)]
         for k, v in report.items()

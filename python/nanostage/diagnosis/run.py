@@ -42,6 +42,7 @@ from .engine import (
     align_holds,
     crossfit_models,
     diagnose_experiments,
+    indistinguishable,
     simulate_readings_and_commands,
 )
 from .gap import analyse_gap
@@ -106,21 +107,6 @@ def _moves(e: Experiment) -> list[tuple[int, float, float]]:
             out.append((int(k), float(e.time_s[k] - e.time_s[prev]), float(ref[k] - ref[k - 1])))
         prev = int(k)
     return out
-
-
-def indistinguishable(a: CandidateResult, b: CandidateResult) -> bool:
-    """Whether the validation data cannot tell candidates ``a`` and ``b`` apart: their RMS
-    gaps lie within 25 % of each other and the mean difference of their per-experiment mean
-    squares is within two standard errors (over the validation experiments). With fewer
-    than two validation experiments nothing can be told apart."""
-    d = a.validation_ms - b.validation_ms
-    if len(d) < 2:
-        return True
-    se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
-    close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
-        a.validation_rms_m, b.validation_rms_m
-    )
-    return close and abs(float(np.mean(d))) <= 2.0 * se
 
 
 def ties_of_selected(
@@ -528,6 +514,7 @@ def assemble_report(
         "candidates": candidates,
         "selected": list(out["selected"]),
         "indistinguishable": ties_of_selected(rounds, out["selected"]),
+        "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": best_single.effect if best_single else None,
