@@ -841,6 +841,17 @@ def test_markdown_without_after_and_with_iso() -> None:
     assert "## ISO 230-2 (final hold positions)" in md and "| R↑ |" in md
 
 
+def test_markdown_names_a_tie_and_how_it_was_decided() -> None:
+    base = {"candidates": [], "selected": ["asymmetric_friction"]}
+    ties = {"asymmetric_friction": ["offset_force"]}
+    md = markdown_report(base | {"indistinguishable": ties, "tie_break": "occam_factor"})
+    assert "cannot tell it from `offset_force`" in md and "larger Occam factor" in md
+    md = markdown_report(base | {"indistinguishable": ties, "tie_break": "validation_gap"})
+    assert "smaller validation gap" in md and "Occam" not in md
+    md = markdown_report(base | {"indistinguishable": {}, "tie_break": "occam_factor"})
+    assert "- `asymmetric_friction`\n" in md and "Occam" not in md
+
+
 def test_replace_paths_rebuilds_each_level_once_and_checks_every_path() -> None:
     """Several paths in one group and a path into another group: the copy equals the
     dataclass replacements written out; a bad path at any depth raises before anything is
