@@ -102,7 +102,8 @@ class DiagnosisSettings:
     #: Laplace approximation of the Bayesian evidence with uniform priors on the bounds; the
     #: likelihoods count as equal in a tie). Off: the smallest validation gap, a difference
     #: within the noise. Measured on the stored reports of seven benchmark seeds (first
-    #: selections, offline): 19 picks turned right, 4 wrong (stop 20 note).
+    #: selections, offline, in-sample): 19 picks turned right, 4 wrong; on two seeds drawn
+    #: afterwards (22, 23) top-1 97.6 % and 95.2 % against 90.5 % and 88.1 % without it.
     occam_tie_break: bool = True
     #: Significant candidates of a round whose free values restart the model before
     #: (refitting alone; 0 turns the control off).
