@@ -44,6 +44,7 @@ from nanostage.diagnosis.engine import (
     DiagnosisSettings,
     Fit,
     FitProblem,
+    SimulationCache,
     _best_shift,
     _Ctx,
     _judge,
@@ -60,6 +61,7 @@ from nanostage.diagnosis.engine import (
     noise_floor_m,
     pick_winner,
     refine_names,
+    simulate_readings_and_commands,
     with_starts,
 )
 from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
@@ -858,9 +860,66 @@ def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None
     assert d.report["selected"] == [] and d.report["crossfit"] is None
     assert all(not c["significant"] for c in d.report["candidates"])
     one = diagnose(m, None, settings=dc.replace(FAST, parallel_candidates=1), progress=False)
-    assert {k: v for k, v in one.report.items() if k != "timing_s"} == {
-        k: v for k, v in d.report.items() if k != "timing_s"
+    # Bookkeeping aside (time, and how many simulations were looked up: two candidates
+    # fitted at once may both simulate a pair neither has stored yet).
+    book = {"timing_s", "simulations"}
+    assert {k: v for k, v in one.report.items() if k not in book} == {
+        k: v for k, v in d.report.items() if k not in book
     }
+
+
+def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
+    """The simulation cache changes no result: the report without it is the same to the last
+    bit, and with it some simulations were looked up (a refit repeats its screening's
+    starts) and fewer were run."""
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    st = dc.replace(FAST, n_starts_candidate=2)
+    cached = diagnose(m, None, settings=st, progress=False).report
+    plain = diagnose(
+        m, None, settings=dc.replace(st, simulation_cache_mb=0.0), progress=False
+    ).report
+    book = {"timing_s", "simulations"}
+    assert {k: v for k, v in cached.items() if k not in book} == {
+        k: v for k, v in plain.items() if k not in book
+    }
+    assert plain["simulations"] == {"simulated": None, "reused": 0}
+    assert cached["simulations"]["reused"] > 0 and cached["simulations"]["simulated"] > 0
+    with pytest.raises(ValueError, match=r"simulation_cache_mb = -1.0: must be ≥ 0"):
+        diagnose(m, None, settings=dc.replace(st, simulation_cache_mb=-1.0), progress=False)
+
+
+def test_simulation_cache_looks_up_repeats_and_drops_the_least_recently_used() -> None:
+    base = ns.presets.seed(1e-3)
+    ref = np.r_[np.zeros(20), np.full(180, 5e-5)]
+    t = np.arange(200) * base.sample_period_s
+    exps = [
+        Experiment(name=f"c{i}", time_s=t, reference_m=ref + i * 1e-3, position_m=ref + i * 1e-3)
+        for i in range(2)
+    ]
+    kp, ki, kd = presets.table1_gains(5e-5)
+    other = presets.with_gains(base, kp=2.0 * kp, ki=ki, kd=kd)
+    direct = simulate_readings_and_commands([base, other, base], [exps[0], exps[0], exps[1]])
+    one = 2 * 200 * 8  # bytes of one (reading, command) pair
+    cache = SimulationCache(2.5 * one)
+    got = cache.simulate([base, other, base, base], [exps[0], exps[0], exps[1], exps[0]])
+    # A pair repeated within a call is simulated once; the results are the direct ones.
+    assert (cache.misses, cache.hits, len(cache)) == (3, 1, 2)
+    for (r, c), (r0, c0) in zip(got, [*direct, direct[0]], strict=True):
+        assert np.array_equal(r, r0) and np.array_equal(c, c0)
+        assert not r.flags.writeable and not c.flags.writeable
+    # Two pairs fit in 2.5 pairs' bytes: (base, c0), stored first, was dropped.
+    assert cache.n_bytes == 2 * one
+    cache.simulate([base], [exps[1]])  # a hit, now the most recently used
+    assert (cache.misses, cache.hits) == (3, 2)
+    cache.simulate([base], [exps[0]])  # simulated again; drops (other, c0)
+    assert (cache.misses, cache.hits, len(cache)) == (4, 2, 2)
+    cache.simulate([other, base], [exps[0], exps[1]])
+    assert (cache.misses, cache.hits) == (5, 3)
+    # Equal systems are one key, whichever object: a rebuilt copy is a hit.
+    cache.simulate([dc.replace(base)], [exps[1]])
+    assert cache.hits == 4
+    with pytest.raises(ValueError, match="max_bytes"):
+        SimulationCache(-1.0)
 
 
 def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:

@@ -26,7 +26,9 @@ import dataclasses
 import itertools
 import math
 import sys
+import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -47,6 +49,7 @@ __all__ = [
     "DiagnosisSettings",
     "Fit",
     "FitProblem",
+    "SimulationCache",
     "crossfit_folds",
     "crossfit_models",
     "diagnose_experiments",
@@ -133,6 +136,11 @@ class DiagnosisSettings:
     #: Candidates fitted at once within a round (Python threads; each fit's simulations
     #: still run as batches on ``workers`` threads). The results do not depend on it.
     parallel_candidates: int = 2
+    #: Memory for simulations kept for reuse within one diagnosis (:class:`SimulationCache`),
+    #: MB; 0 turns the reuse off. The results do not depend on it: a candidate's refit
+    #: repeats its screening's scan and local fits exactly, and these are looked up instead
+    #: of simulated again.
+    simulation_cache_mb: float = 512.0
 
 
 def with_starts(
@@ -190,6 +198,7 @@ class FitProblem:
         experiments: Sequence[Experiment],
         threads: int,
         adapt: Adapt,
+        cache: SimulationCache | None = None,
     ) -> None:
         self.params = list(params)
         self.build = build
@@ -197,6 +206,8 @@ class FitProblem:
         #: Simulation threads of each batch (0: one per CPU).
         self.threads = threads
         self.adapt = adapt
+        #: Simulations seen before (shared by the problems of one diagnosis), or None.
+        self.cache = cache
         self.n_evaluations = 0
         self.scale_m = 1e-7
         #: :func:`gap_plan` of each experiment (by name), computed on first use.
@@ -225,9 +236,8 @@ class FitProblem:
     ) -> list[tuple[list[FloatArray], list[float | None]]]:
         n = len(experiments)
         pairs = [(self.adapt(s, e), e) for s in systems for e in experiments]
-        sims = simulate_readings_and_commands(
-            [a for a, _ in pairs], [e for _, e in pairs], self.threads
-        )
+        simulate = simulate_readings_and_commands if self.cache is None else self.cache.simulate
+        sims = simulate([a for a, _ in pairs], [e for _, e in pairs], self.threads)
         out = []
         for j in range(len(systems)):
             gaps: list[FloatArray] = []
@@ -629,6 +639,73 @@ def simulate_readings_and_commands(
     return out
 
 
+class SimulationCache:
+    """The simulated reading and command (:func:`simulate_readings_and_commands`) of each
+    (system, experiment) pair simulated so far, the least recently used dropped beyond
+    ``max_bytes``. A simulation is a deterministic function of its system and experiment (the
+    same trace bit for bit whatever the batch or thread count), so a pair seen before is
+    looked up instead of simulated: the results are those without the cache. Within a
+    diagnosis a candidate's refit repeats its screening's scan and local fits from the same
+    starts, and a discrete candidate's fits repeat its setting's start.
+
+    Systems are compared by value (``System`` is a frozen dataclass), experiments by
+    identity; an entry keeps its experiment alive. Thread-safe (candidates are fitted on
+    several Python threads); a batch's misses are simulated as one batch, outside the lock.
+    The stored arrays are read-only."""
+
+    def __init__(self, max_bytes: float) -> None:
+        if not max_bytes >= 0.0:
+            raise ValueError(f"SimulationCache max_bytes = {max_bytes!r}: must be ≥ 0")
+        self.max_bytes = max_bytes
+        self.n_bytes = 0
+        self.hits = 0
+        self.misses = 0
+        self._lock = threading.Lock()
+        self._entries: OrderedDict[
+            tuple[System, int], tuple[Experiment, FloatArray, FloatArray]
+        ] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def simulate(
+        self, systems: Sequence[System], experiments: Sequence[Experiment], threads: int = 0
+    ) -> list[tuple[FloatArray, FloatArray]]:
+        """:func:`simulate_readings_and_commands` of the pairs, the ones seen before looked
+        up; a pair repeated within the call is simulated once."""
+        keys = [(s, id(e)) for s, e in zip(systems, experiments, strict=True)]
+        found: dict[tuple[System, int], tuple[FloatArray, FloatArray]] = {}
+        with self._lock:
+            for key in keys:
+                hit = self._entries.get(key)
+                if hit is not None and key not in found:
+                    self._entries.move_to_end(key)
+                    found[key] = (hit[1], hit[2])
+        todo: dict[tuple[System, int], int] = {}
+        for j, key in enumerate(keys):
+            if key not in found and key not in todo:
+                todo[key] = j
+        self.hits += len(keys) - len(todo)
+        self.misses += len(todo)
+        if todo:
+            idx = list(todo.values())
+            sims = simulate_readings_and_commands(
+                [systems[j] for j in idx], [experiments[j] for j in idx], threads
+            )
+            with self._lock:
+                for key, j, (reading, command) in zip(todo, idx, sims, strict=True):
+                    reading.setflags(write=False)
+                    command.setflags(write=False)
+                    found[key] = (reading, command)
+                    if key not in self._entries:
+                        self._entries[key] = (experiments[j], reading, command)
+                        self.n_bytes += reading.nbytes + command.nbytes
+                while self.n_bytes > self.max_bytes and self._entries:
+                    _, (_, r, c) = self._entries.popitem(last=False)
+                    self.n_bytes -= r.nbytes + c.nbytes
+        return [found[key] for key in keys]
+
+
 def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
     """The simulated true position of the sensor's side minus half a count."""
     return simulate_reading_and_command(system, exp)[0]
@@ -868,6 +945,8 @@ class _Ctx:
     #: Per experiment name: (overall floor / its own floor)², the weight of its mean square
     #: in the significance rules (missing: 1).
     weights: Mapping[str, float] = field(default_factory=dict)
+    #: Simulations of this diagnosis kept for reuse (None: every one simulated).
+    cache: SimulationCache | None = None
 
     @property
     def n_validation(self) -> int:
@@ -914,7 +993,9 @@ class _Ctx:
                 for st in starts
             ]
             # Only its batch evaluation is used: the systems are built above.
-            prob = FitProblem(self.free, lambda v: base, train, self.st.workers, self.adapt)
+            prob = FitProblem(
+                self.free, lambda v: base, train, self.st.workers, self.adapt, self.cache
+            )
             ms = [math.inf if r is None else _rms(r) ** 2 for r in prob.residuals_or_none(systems)]
             cost += np.min(np.reshape(ms, (len(cand.discrete), len(starts))), axis=1)
         if not np.isfinite(cost).any():
@@ -953,6 +1034,7 @@ class _Ctx:
                 train,
                 self.st.workers,
                 self.adapt,
+                self.cache,
             )
             # Two starts at least: the warm values, and the manifest's (prior) values.
             prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
@@ -1004,10 +1086,16 @@ def diagnose_experiments(
     the first fold), ``nominal_validation_ms``, ``floor_rms_m``, ``rounds`` (lists of
     CandidateResult, best first), ``selected`` (names), ``final`` (Fit of the first fold),
     ``final_validation_ms``, ``skipped`` (name → reason), ``refit_control`` (the rounds in
-    which refitting the model before from a candidate's free values improved it) and
-    ``timing_s``."""
+    which refitting the model before from a candidate's free values improved it),
+    ``timing_s`` and ``simulations`` (``simulated``: simulations run, None without the
+    cache; ``reused``: looked up in the :class:`SimulationCache`)."""
     st = settings or DiagnosisSettings()
     t_start = time.perf_counter()
+    if not st.simulation_cache_mb >= 0.0:
+        raise ValueError(
+            f"DiagnosisSettings.simulation_cache_mb = {st.simulation_cache_mb!r}: must be ≥ 0 "
+            "(MB of simulations kept for reuse; 0 turns the reuse off)"
+        )
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
     every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
@@ -1031,6 +1119,9 @@ def diagnose_experiments(
         weights=weights,
         adapt=adapt or (lambda s, e: s),
         nominal=nominal,
+        cache=(
+            SimulationCache(st.simulation_cache_mb * 1e6) if st.simulation_cache_mb > 0 else None
+        ),
     )
     _progress(
         f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
@@ -1158,6 +1249,10 @@ def diagnose_experiments(
         "skipped": skipped,
         "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
+        "simulations": {
+            "simulated": None if ctx.cache is None else ctx.cache.misses,
+            "reused": 0 if ctx.cache is None else ctx.cache.hits,
+        },
     }
 
 

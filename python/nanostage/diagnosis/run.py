@@ -550,6 +550,7 @@ def assemble_report(
             {"train": [e.name for e in t], "validate": [e.name for e in v]} for t, v in folds
         ],
         "timing_s": out["timing_s"],
+        "simulations": dict(out["simulations"]),
     }
 
 
