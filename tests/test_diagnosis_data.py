@@ -841,6 +841,39 @@ def test_markdown_without_after_and_with_iso() -> None:
     assert "## ISO 230-2 (final hold positions)" in md and "| R↑ |" in md
 
 
+def test_markdown_gap_table_has_the_best_single_effect_where_it_differs() -> None:
+    """How far, per segment: nominal, best single effect, selected set. The single effect's
+    columns appear with two effects selected (and with none: the best any single effect
+    did), not with one (they would repeat the after columns)."""
+    exps, sims = _perturbed_pair(100e-6, 3)
+    exact = [e.position_m for e in exps]
+    gaps = [analyse_gap(exps, s).to_dict(spectra=False) for s in (sims, exact, exact)]
+    # A perfect model gives zero RMS: distinguishable from the perturbed one in the table.
+    rep = {
+        "gap_before": gaps[0],
+        "gap_best_single": gaps[1],
+        "gap_after": gaps[2],
+        "best_single_effect": "backlash",
+        "candidates": [],
+    }
+    head = "| Segment | n | RMS before [µm] | share before | RMS backlash alone [µm] |"
+    md = markdown_report(rep | {"selected": ["backlash", "gms"]})
+    assert head in md and "share backlash alone | RMS after [µm] | share after |" in md
+    assert "backlash alone: the best single effect, after: the selected set" in md
+    md_none = markdown_report(rep | {"selected": []})
+    assert head in md_none
+    md_one = markdown_report(rep | {"selected": ["backlash"]})
+    assert "alone" not in md_one and "| RMS before [µm] | share before | RMS after [µm] |" in md_one
+    # Each segment row: the single effect's cells between before and after.
+    rows = [
+        [c.strip() for c in line.strip().strip("|").split("|")]
+        for line in md.splitlines()
+        if line.startswith("| ") and not line.startswith(("| Segment", "| **total**", "| ---"))
+    ]
+    filled = [r for r in rows if len(r) == 8 and r[1] not in ("0", "—")]
+    assert len(filled) >= 3 and all(r[4] == r[6] == "0" != r[2] for r in filled)
+
+
 def test_markdown_names_a_tie_and_how_it_was_decided() -> None:
     base = {"candidates": [], "selected": ["asymmetric_friction"]}
     ties = {"asymmetric_friction": ["offset_force"]}

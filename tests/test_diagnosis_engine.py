@@ -65,7 +65,13 @@ from nanostage.diagnosis.engine import (
     with_starts,
 )
 from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
-from nanostage.diagnosis.run import diagnose, indistinguishable, model_gap, ties_of_selected
+from nanostage.diagnosis.run import (
+    best_single,
+    diagnose,
+    indistinguishable,
+    model_gap,
+    ties_of_selected,
+)
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effect_names import EFFECT_NAMES
 from nanostage.effects import (
@@ -679,6 +685,13 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
         "asymmetric_friction": ["offset_force"]
     }
     assert ties_of_selected(rounds, []) == {}
+    # The best single effect is the first selection's, also when another candidate of its
+    # round has a smaller validation gap (a tie decided by the Occam factor); with nothing
+    # selected, the smallest gap.
+    rounds = [[same, best, worse]]
+    assert best_single(rounds[0], ["asymmetric_friction", "backlash"]) is best
+    assert best_single(rounds[0], []) is same
+    assert best_single([], []) is None
 
 
 def test_log_occam_factor_by_hand() -> None:

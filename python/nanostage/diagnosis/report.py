@@ -187,28 +187,43 @@ def _gap_stats(gap: Any) -> Mapping[str, Any] | None:
     return None
 
 
-def _gap_table(before: Mapping[str, Any] | None, after: Mapping[str, Any] | None) -> str:
+def _gap_table(
+    before: Mapping[str, Any] | None,
+    after: Mapping[str, Any] | None,
+    single: tuple[str, Mapping[str, Any]] | None = None,
+) -> str:
+    """The per-segment table: RMS and share before (the nominal model) and after (the
+    selected set), with ``single`` = (effect, its gap stats) also the best single effect's
+    columns between them."""
+    cols: list[tuple[str, Mapping[str, Any]]] = [("before", before or {})]
+    if single is not None:
+        cols.append((f"{_md_escape(single[0])} alone", single[1]))
+    if after is not None:
+        cols.append(("after", after))
     out: list[str] = []
-    parts_b = (before or {}).get("partitions", {})
-    parts_a = (after or {}).get("partitions", {})
-    head = ["Segment", "n", "RMS before [µm]", "share before"]
-    if after is not None:
-        head += ["RMS after [µm]", "share after"]
+    parts = [c.get("partitions", {}) for _, c in cols]
+    head = ["Segment", "n"]
+    for label, _ in cols:
+        head += [f"RMS {label} [µm]", f"share {label}"]
     total = ["**total**", _fmt("n", (before or after or {}).get("n_samples"))]
-    total += [_fmt("rms_m", (before or {}).get("rms_m")), "100.0 %" if before else "—"]
-    if after is not None:
-        total += [_fmt("rms_m", after.get("rms_m")), "100.0 %"]
-    for pname in list(parts_b) + [p for p in parts_a if p not in parts_b]:
-        segs_b = parts_b.get(pname, {})
-        segs_a = parts_a.get(pname, {})
-        names = list(segs_b) + [k for k in segs_a if k not in segs_b]
+    for i, (_, c) in enumerate(cols):
+        present = c if i or before else None
+        total += [_fmt("rms_m", c.get("rms_m")), "100.0 %" if present else "—"]
+    pnames: list[str] = []
+    for p in parts:
+        pnames += [n for n in p if n not in pnames]
+    for pname in pnames:
+        segs = [p.get(pname, {}) for p in parts]
+        names: list[str] = []
+        for sg in segs:
+            names += [k for k in sg if k not in names]
         rows = [total]
         for name in names:
-            b, a = segs_b.get(name, {}), segs_a.get(name, {})
-            row = [_md_escape(name), _fmt("n", b.get("n_samples", a.get("n_samples")))]
-            row += [_fmt("rms_m", b.get("rms_m")), _fmt("share", b.get("share"))]
-            if after is not None:
-                row += [_fmt("rms_m", a.get("rms_m")), _fmt("share", a.get("share"))]
+            cells = [sg.get(name, {}) for sg in segs]
+            n = next((c["n_samples"] for c in cells if "n_samples" in c), None)
+            row = [_md_escape(name), _fmt("n", n)]
+            for c in cells:
+                row += [_fmt("rms_m", c.get("rms_m")), _fmt("share", c.get("share"))]
             rows.append(row)
         out.append(f"#### By {pname}\n\n" + _table(head, rows))
     return "\n".join(out)
@@ -328,14 +343,26 @@ def markdown_report(
     """
     before, after = report.get("gap_before"), report.get("gap_after")
     sb, sa = _gap_stats(before), _gap_stats(after)
+    # The best single effect gets columns of its own where they differ from the after
+    # ones: with more than one effect selected, or none (the best any single effect did).
+    ss = _gap_stats(report.get("gap_best_single"))
+    name = report.get("best_single_effect")
+    show_single = ss is not None and name and len(report.get("selected") or []) != 1
     out = [f"# {_md_escape(title)}\n"]
     if sb is not None or sa is not None:
         out.append("## Gap per segment\n")
         out.append(
             "RMS residual (measured − simulated) per segment and its share of the total sum "
-            "of squares (the shares of each partition add up to 100 %).\n"
+            "of squares (the shares of each partition add up to 100 %)"
+            + (
+                f"; before: the nominal model, {_md_escape(str(name))} alone: the best single "
+                "effect, after: the selected set"
+                if show_single
+                else ""
+            )
+            + ".\n"
         )
-        out.append(_gap_table(sb, sa))
+        out.append(_gap_table(sb, sa, (str(name), ss) if show_single and ss else None))
     lead_rows = []
     for label, g in (("before", before), ("after", after)):
         if isinstance(g, Mapping) and "lead_share" in g:

@@ -126,6 +126,20 @@ def ties_of_selected(
     return out
 
 
+def best_single(
+    first_round: Sequence[CandidateResult], selected: Sequence[str]
+) -> CandidateResult | None:
+    """The report's best single effect: the round-1 fit of the effect selected first (in a
+    tie decided by the Occam factor, not always the smallest validation gap); with nothing
+    selected, the round-1 candidate with the smallest validation gap (``first_round`` is
+    sorted best first); None without candidates."""
+    if selected:
+        hit = next((r for r in first_round if r.effect == selected[0]), None)
+        if hit is not None:
+            return hit
+    return first_round[0] if first_round else None
+
+
 def experiment_advice(
     experiments: Sequence[Experiment],
     lead_m: float | None,
@@ -495,9 +509,9 @@ def assemble_report(
     first = rounds[0] if rounds else []
     before = _gap(val, _simulated(out["nominal_fits"], folds, adapt), lead_m)
     after = _gap(val, _simulated(out["final_fits"], folds, adapt), lead_m)
-    best_single = first[0] if first else None
+    single_best = best_single(first, out["selected"])
     single = (
-        _gap(val, _simulated(best_single.fold_fits, folds, adapt), lead_m) if best_single else None
+        _gap(val, _simulated(single_best.fold_fits, folds, adapt), lead_m) if single_best else None
     )
     candidates = [r.to_dict([]) for r in first]
     evidence = []
@@ -517,7 +531,7 @@ def assemble_report(
         "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",
         "gap_after": after,
         "gap_best_single": single,
-        "best_single_effect": best_single.effect if best_single else None,
+        "best_single_effect": single_best.effect if single_best else None,
         "noise_floor_rms_m": floor,
         "experiment_noise_floors_m": dict(out["experiment_floors_m"]),
         "kind_floors": bool(out["kind_floors"]),
