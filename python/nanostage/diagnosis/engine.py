@@ -685,8 +685,9 @@ class SimulationCache:
         for j, key in enumerate(keys):
             if key not in found and key not in todo:
                 todo[key] = j
-        self.hits += len(keys) - len(todo)
-        self.misses += len(todo)
+        with self._lock:
+            self.hits += len(keys) - len(todo)
+            self.misses += len(todo)
         if todo:
             idx = list(todo.values())
             sims = simulate_readings_and_commands(
