@@ -1052,7 +1052,7 @@ def test_kind_floors_let_a_fix_of_the_quiet_experiments_count() -> None:
     assert not judge(jitter, weighted=True).significant
 
 
-def test_friction_model_candidates_are_screened_from_two_starts() -> None:
+def test_friction_model_candidates_are_screened_from_two_starts_and_refitted_from_six() -> None:
     """A friction-model candidate (it replaces the table friction, so its warm start is not
     the model before) is screened with a local fit from the warm start and one from the
     scan's best point; other candidates with the better of the two only. Found on a
@@ -1063,8 +1063,9 @@ def test_friction_model_candidates_are_screened_from_two_starts() -> None:
     base = presets.seed(1e-3)
 
     def fit_and_validate(*args: Any, **kwargs: Any) -> Any:
-        # (…, screen_starts, scan_starts)
-        raise _Seen(args[-2], args[-1])
+        # (base, params, apply, n_starts, seed, screen, scan_points, screen_starts,
+        # scan_starts)
+        raise _Seen(args[-2], args[-1], args[3])
 
     class _Seen(Exception):
         pass
@@ -1078,7 +1079,7 @@ def test_friction_model_candidates_are_screened_from_two_starts() -> None:
         try:
             _judge(cand, base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=True)
         except _Seen as s:
-            seen[cand.name], scan[cand.name] = s.args
+            seen[cand.name], scan[cand.name], _ = s.args
     assert seen == {
         "gms": 2,
         "lugre": 2,
@@ -1093,6 +1094,15 @@ def test_friction_model_candidates_are_screened_from_two_starts() -> None:
     with pytest.raises(_Seen) as one:
         _judge(cands[0], base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=True)
     assert one.value.args[0] == 1
+    # Refits: a friction model from six starts (its gap has many basins), others from three.
+    ctx = SimpleNamespace(st=DiagnosisSettings(), fit_and_validate=fit_and_validate)
+    refit: dict[str, int] = {}
+    for cand in cands:
+        try:
+            _judge(cand, base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=False)
+        except _Seen as s:
+            refit[cand.name] = s.args[2]
+    assert refit == {k: 6 if k in ("gms", "lugre") else 3 for k in seen}
 
 
 @pytest.mark.parametrize(
