@@ -798,6 +798,21 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
     assert record["restarted_from"] == "e" and record["round"] == 2
     assert record["train_rms_after_m"] < record["train_rms_before_m"]
     assert ctx.warm == [{free[0][0]: 5.0}]
+    # By default every significant candidate restarts it: the third one here finds the
+    # better optimum, which the best two alone would miss.
+    three = [result("f", 7.0, True), result("g", 5.0, True), result("h", 3.0, True)]
+    calls.clear()
+    assert _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False) is None
+    assert calls == [7.0, 5.0]
+    ctx.st = DiagnosisSettings()
+    assert ctx.st.refit_control_top is None
+    calls.clear()
+    out = _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False)
+    assert out is not None and out[4]["restarted_from"] == "h" and calls == [7.0, 5.0, 3.0]
+    ctx.st = DiagnosisSettings(refit_control_top=0)
+    calls.clear()
+    assert _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False) is None
+    assert calls == []
 
 
 def test_crossfit_folds_judge_each_validation_experiment_once_by_a_fit_without_it() -> None:
@@ -1070,7 +1085,9 @@ def test_friction_model_candidates_are_screened_from_two_starts_and_refitted_fro
     class _Seen(Exception):
         pass
 
-    ctx = SimpleNamespace(st=DiagnosisSettings(), fit_and_validate=fit_and_validate)
+    ctx = SimpleNamespace(
+        st=DiagnosisSettings(), fit_and_validate=fit_and_validate, selected_effects=[]
+    )
     cands, _ = applicable_candidates(
         base, ["gms", "lugre", "offset_force", "backlash", "dwell_static_friction"]
     )
@@ -1090,12 +1107,14 @@ def test_friction_model_candidates_are_screened_from_two_starts_and_refitted_fro
     # The dwell gap's basin is narrow: local fits from the four best scanned points.
     assert scan == {k: 4 if k == "dwell_static_friction" else 1 for k in seen}
     st = DiagnosisSettings(screen_starts_friction_models=1)
-    ctx = SimpleNamespace(st=st, fit_and_validate=fit_and_validate)
+    ctx = SimpleNamespace(st=st, fit_and_validate=fit_and_validate, selected_effects=[])
     with pytest.raises(_Seen) as one:
         _judge(cands[0], base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=True)
     assert one.value.args[0] == 1
     # Refits: a friction model from six starts (its gap has many basins), others from three.
-    ctx = SimpleNamespace(st=DiagnosisSettings(), fit_and_validate=fit_and_validate)
+    ctx = SimpleNamespace(
+        st=DiagnosisSettings(), fit_and_validate=fit_and_validate, selected_effects=[]
+    )
     refit: dict[str, int] = {}
     for cand in cands:
         try:
@@ -1103,6 +1122,11 @@ def test_friction_model_candidates_are_screened_from_two_starts_and_refitted_fro
         except _Seen as s:
             refit[cand.name] = s.args[2]
     assert refit == {k: 6 if k in ("gms", "lugre") else 3 for k in seen}
+    # In later rounds (on top of a selected effect) every candidate from three.
+    ctx.selected_effects = [(cands[3], [1e-5, 5e7])]
+    with pytest.raises(_Seen) as later:
+        _judge(cands[0], base, np.ones(1), [None], None, cast(Any, ctx), 0, screen=False)
+    assert later.value.args[2] == 3
 
 
 @pytest.mark.parametrize(

@@ -75,12 +75,15 @@ class DiagnosisSettings:
 
     n_starts_nominal: int = 3
     n_starts_candidate: int = 3
-    #: Starts of a friction-model candidate's refit (`lugre`, `gms`, …; screening as
-    #: :attr:`screen_starts_friction_models`). It replaces the table friction, so its warm
-    #: start is not the model before, and its gap has many basins: on the 12 presliding
-    #: cases of benchmark seeds 22 and 23, the GMS candidate fitted alone from 6 starts
-    #: instead of 3 ended at a smaller training gap in 6 (by 21–58 %), and its validation
-    #: shrink rose in 5 of them (median of the 12 from 0.41 to 0.56).
+    #: Starts of a friction-model candidate's refit in the first round (`lugre`, `gms`, …;
+    #: screening as :attr:`screen_starts_friction_models`; later rounds
+    #: :attr:`n_starts_candidate`: on the speed bench's backlash case six starts on top of
+    #: the hunting backlash took the diagnosis from 46 to 72 s). A friction model replaces
+    #: the table friction, so its warm start is not the model before, and its gap has many
+    #: basins: on the 12 presliding cases of benchmark seeds 22 and 23, the GMS candidate
+    #: fitted alone from 6 starts instead of 3 ended at a smaller training gap in 6 (by
+    #: 21–58 %), and its validation shrink rose in 5 of them (median of the 12 from 0.41
+    #: to 0.56).
     n_starts_friction_models: int = 6
     max_nfev_per_param: int = 12
     diff_step: float = 0.03
@@ -116,8 +119,13 @@ class DiagnosisSettings:
     #: afterwards (22, 23) top-1 97.6 % and 95.2 % against 90.5 % and 88.1 % without it.
     occam_tie_break: bool = True
     #: Significant candidates of a round whose free values restart the model before
-    #: (refitting alone; 0 turns the control off).
-    refit_control_top: int = 2
+    #: (refitting alone), the best first; None: every significant one, 0: none. With the
+    #: best two only (the default until stop 21), a third significant candidate could be
+    #: selected by the tie-break without its control: on the speed bench's delay case,
+    #: refitted friction models ranked ahead of the drive compliance whose free values had
+    #: restarted the delay model from 511 to 401 nm, and the compliance was selected as a
+    #: second effect.
+    refit_control_top: int | None = None
     #: Points of the coarse scan over a candidate's own parameters before its local fits,
     #: per parameter of the candidate (at most :attr:`scan_points_max`). The closed loop's
     #: gap is rugged where stick-slip makes the response chaotic: on a dwell case the good
@@ -1403,11 +1411,11 @@ def _refit_control(
     progress: bool,
 ) -> tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None:
     """The model before, refitted from the free values of each of the best
-    ``refit_control_top`` significant candidates: its fits, validation mean squares,
+    ``refit_control_top`` significant candidates (None: all): its fits, validation mean squares,
     command residuals and a record for the report if one of them fits the training data
     better than ``current_fits`` (by more than 0.1 % in mean square), else None."""
     st = ctx.st
-    if not ctx.free or st.refit_control_top <= 0:
+    if not ctx.free or st.refit_control_top == 0:
         return None
     saved = list(ctx.warm)
 
@@ -1496,11 +1504,15 @@ def _judge(
         k_params = 1
     else:
         friction_model = cand.name in FRICTION_MODELS
+        # The extra starts of a friction model in the first round only: later rounds ask
+        # whether anything remains on top of the selected effects, whose simulations can
+        # cost far more (a hunting backlash ~16×).
+        many = friction_model and not ctx.selected_effects
         fits, ms, _, cmd, units = ctx.fit_and_validate(
             base,
             extra,
             cand.apply,
-            st.n_starts_friction_models if friction_model else st.n_starts_candidate,
+            st.n_starts_friction_models if many else st.n_starts_candidate,
             st.seed + index,
             screen,
             cand.scan_points,
