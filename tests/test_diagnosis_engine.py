@@ -809,10 +809,13 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
     calls.clear()
     out = _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False)
     assert out is not None and out[4]["restarted_from"] == "h" and calls == [7.0, 5.0, 3.0]
-    ctx.st = DiagnosisSettings(refit_control_top=0)
-    calls.clear()
-    assert _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False) is None
-    assert calls == []
+    for off in (0, -1):
+        ctx.st = DiagnosisSettings(refit_control_top=off)
+        calls.clear()
+        assert (
+            _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False) is None
+        )
+        assert calls == []
 
 
 def test_crossfit_folds_judge_each_validation_experiment_once_by_a_fit_without_it() -> None:

@@ -119,7 +119,7 @@ class DiagnosisSettings:
     #: afterwards (22, 23) top-1 97.6 % and 95.2 % against 90.5 % and 88.1 % without it.
     occam_tie_break: bool = True
     #: Significant candidates of a round whose free values restart the model before
-    #: (refitting alone), the best first; None: every significant one, 0: none. With the
+    #: (refitting alone), the best first; None: every significant one, ≤ 0: none. With the
     #: best two only (the default until stop 21), a third significant candidate could be
     #: selected by the tie-break without its control: on the speed bench's delay case,
     #: refitted friction models ranked ahead of the drive compliance whose free values had
@@ -1415,7 +1415,7 @@ def _refit_control(
     command residuals and a record for the report if one of them fits the training data
     better than ``current_fits`` (by more than 0.1 % in mean square), else None."""
     st = ctx.st
-    if not ctx.free or st.refit_control_top == 0:
+    if not ctx.free or (st.refit_control_top is not None and st.refit_control_top <= 0):
         return None
     saved = list(ctx.warm)
 
