@@ -664,9 +664,11 @@ class SimulationCache:
     starts, and a discrete candidate's fits repeat its setting's start.
 
     Systems are compared by value (``System`` is a frozen dataclass), experiments by
-    identity; an entry keeps its experiment alive. Thread-safe (candidates are fitted on
-    several Python threads); a batch's misses are simulated as one batch, outside the lock.
-    The stored arrays are read-only."""
+    identity; an entry keeps its experiment alive. By value means ``0.0 == -0.0``: two
+    systems differing only in the sign of a zero share an entry (their simulations could
+    differ in the last bit where that sign reaches the arithmetic). Thread-safe
+    (candidates are fitted on several Python threads); a batch's misses are simulated as one
+    batch, outside the lock. The stored arrays are read-only."""
 
     def __init__(self, max_bytes: float) -> None:
         if not max_bytes >= 0.0:
