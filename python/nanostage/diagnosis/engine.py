@@ -1105,8 +1105,9 @@ def diagnose_experiments(
     CandidateResult, best first), ``selected`` (names), ``final`` (Fit of the first fold),
     ``final_validation_ms``, ``skipped`` (name → reason), ``refit_control`` (the rounds in
     which refitting the model before from a candidate's free values improved it),
-    ``timing_s`` and ``simulations`` (``simulated``: simulations run, None without the
-    cache; ``reused``: looked up in the :class:`SimulationCache`)."""
+    ``timing_s``, ``simulations`` (``simulated``: simulations run, None without the
+    cache; ``reused``: looked up in the :class:`SimulationCache`) and ``cache`` (that
+    cache, or None: the report's simulations of the same fits look it up)."""
     st = settings or DiagnosisSettings()
     t_start = time.perf_counter()
     if not st.simulation_cache_mb >= 0.0:
@@ -1267,6 +1268,7 @@ def diagnose_experiments(
         "skipped": skipped,
         "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
+        "cache": ctx.cache,
         "simulations": {
             "simulated": None if ctx.cache is None else ctx.cache.misses,
             "reused": 0 if ctx.cache is None else ctx.cache.hits,

@@ -207,8 +207,8 @@ def _gap_table(
         head += [f"RMS {label} [µm]", f"share {label}"]
     total = ["**total**", _fmt("n", (before or after or {}).get("n_samples"))]
     for i, (_, c) in enumerate(cols):
-        present = c if i or before else None
-        total += [_fmt("rms_m", c.get("rms_m")), "100.0 %" if present else "—"]
+        # The before column may be absent (an empty mapping); the others are given.
+        total += [_fmt("rms_m", c.get("rms_m")), "100.0 %" if i or before else "—"]
     pnames: list[str] = []
     for p in parts:
         pnames += [n for n in p if n not in pnames]
@@ -347,7 +347,11 @@ def markdown_report(
     # ones: with more than one effect selected, or none (the best any single effect did).
     ss = _gap_stats(report.get("gap_best_single"))
     name = report.get("best_single_effect")
-    show_single = ss is not None and name and len(report.get("selected") or []) != 1
+    single = (
+        (str(name), ss)
+        if ss is not None and name and len(report.get("selected") or []) != 1
+        else None
+    )
     out = [f"# {_md_escape(title)}\n"]
     if sb is not None or sa is not None:
         out.append("## Gap per segment\n")
@@ -357,12 +361,12 @@ def markdown_report(
             + (
                 f"; before: the nominal model, {_md_escape(str(name))} alone: the best single "
                 "effect, after: the selected set"
-                if show_single
+                if single is not None
                 else ""
             )
             + ".\n"
         )
-        out.append(_gap_table(sb, sa, (str(name), ss) if show_single and ss else None))
+        out.append(_gap_table(sb, sa, single))
     lead_rows = []
     for label, g in (("before", before), ("after", after)):
         if isinstance(g, Mapping) and "lead_share" in g:

@@ -38,6 +38,7 @@ from .engine import (
     CandidateResult,
     DiagnosisSettings,
     Fit,
+    SimulationCache,
     _progress,
     align_holds,
     crossfit_models,
@@ -402,17 +403,21 @@ def _simulated_pairs(
     systems: Sequence[System],
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
     adapt: Any,
+    cache: SimulationCache | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Simulated (mean reading, command) of the validation experiments, each fold's by its
-    system, all in one batch of the core."""
+    system, all in one batch of the core (pairs the diagnosis already simulated looked up in
+    its ``cache``)."""
     pairs = [(adapt(s, e), e) for s, (_, v) in zip(systems, folds, strict=True) for e in v]
-    return simulate_readings_and_commands([a for a, _ in pairs], [e for _, e in pairs])
+    simulate = simulate_readings_and_commands if cache is None else cache.simulate
+    return simulate([a for a, _ in pairs], [e for _, e in pairs])
 
 
 def _simulated(
     fits: Sequence[Fit | System],
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
     adapt: Any,
+    cache: SimulationCache | None = None,
 ) -> list[np.ndarray]:
     """Simulated mean readings of the validation experiments (each fold's by its fit's
     system, or the given system), hold windows rank-aligned to the measurement (so that
@@ -421,7 +426,7 @@ def _simulated(
     return [
         align_holds(e.position_m, reading, e.reference_m)
         for e, (reading, _) in zip(
-            _validation_order(folds), _simulated_pairs(systems, folds, adapt), strict=True
+            _validation_order(folds), _simulated_pairs(systems, folds, adapt, cache), strict=True
         )
     ]
 
@@ -507,18 +512,22 @@ def assemble_report(
     val = _validation_order(folds)
     rounds: list[list[CandidateResult]] = out["rounds"]
     first = rounds[0] if rounds else []
-    before = _gap(val, _simulated(out["nominal_fits"], folds, adapt), lead_m)
-    after = _gap(val, _simulated(out["final_fits"], folds, adapt), lead_m)
+    # The engine simulated every one of these fits on the validation experiments already.
+    cache: SimulationCache | None = out.get("cache")
+    before = _gap(val, _simulated(out["nominal_fits"], folds, adapt, cache), lead_m)
+    after = _gap(val, _simulated(out["final_fits"], folds, adapt, cache), lead_m)
     single_best = best_single(first, out["selected"])
     single = (
-        _gap(val, _simulated(single_best.fold_fits, folds, adapt), lead_m) if single_best else None
+        _gap(val, _simulated(single_best.fold_fits, folds, adapt, cache), lead_m)
+        if single_best
+        else None
     )
     candidates = [r.to_dict([]) for r in first]
     evidence = []
     previous = before
     for rnd, name in zip(rounds, out["selected"], strict=False):
         r = next(x for x in rnd if x.effect == name)
-        ev, previous = _evidence(r, previous, val, folds, adapt, lead_m)
+        ev, previous = _evidence(r, previous, val, folds, adapt, lead_m, cache)
         evidence.append(ev)
     floor = float(out["floor_rms_m"])
     total_after = float(after["total_rms_m"])
@@ -581,9 +590,10 @@ def _evidence(
     folds: Any,
     adapt: Any,
     lead_m: float | None,
+    cache: SimulationCache | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """What the effect fixed relative to the model before it was added (and its gap)."""
-    sims = _simulated(r.fold_fits, folds, adapt)
+    sims = _simulated(r.fold_fits, folds, adapt, cache)
     mine = _gap(val, sims, lead_m)
     seg_b = before["by_segment"]
     seg_a = mine["by_segment"]
