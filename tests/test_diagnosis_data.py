@@ -885,6 +885,119 @@ def test_markdown_names_a_tie_and_how_it_was_decided() -> None:
     assert "- `asymmetric_friction`\n" in md and "Occam" not in md
 
 
+def test_markdown_reads_the_evidence_advice_and_selection() -> None:
+    """The readable report has what report.json has for a person: a summary, each selected
+    effect's evidence with its parameters and errors, the experiment advice, the candidates
+    with their parameters (not JSON), the forward selection, the refit control, the
+    calibrated nominal parameters and the candidates not fitted; times in seconds."""
+    cand = {
+        "effect": "backlash",
+        "validation_rms_m": 2.0e-7,
+        "shrink": 0.9766,
+        "significant": True,
+        "p_value": 0.0,
+        "train_rms_m": 2.1e-7,
+        "log_occam_factor": -13.7,
+        "parameters": {
+            "backlash.width_m": {"value": 1.442e-5, "std_error": 2.2e-8, "unit": "m"},
+            "backlash.contact_stiffness_n_per_m": {
+                "value": 3.5e7,
+                "std_error": 2e5,
+                "unit": "N/m",
+            },
+        },
+        "validation_rms_by_experiment_m": [1e-7, 3e-7],
+        "why": ["validation gap 8435 → 198 nm", "bootstrap p = 0.000"],
+    }
+    delay = cand | {
+        "effect": "sensor_delay",
+        "significant": False,
+        "parameters": {"sensor_delay.samples": {"value": 1, "unit": "samples"}},
+    }
+    report = {
+        "gap_before": {"rms_m": 8.4e-6, "partitions": {}},
+        "gap_after": {"rms_m": 2.0e-7, "partitions": {}},
+        "candidates": [cand, delay],
+        "selected": ["backlash"],
+        "indistinguishable": {"backlash": []},
+        "tie_break": "occam_factor",
+        "noise_floor_rms_m": 8.7e-8,
+        "unexplained_rms_m": 1.8e-7,
+        "explained_fraction": 0.999,
+        "evidence": [
+            {
+                "round": 1,
+                "effect": "backlash",
+                "shrink": 0.9766,
+                "p_value": 0.0,
+                "parameters": cand["parameters"],
+                "segments_fixed": ["braking: 6036 → 36 nm (+99%)"],
+                "lead_share_before": 0.5,
+                "lead_share_after": 0.25,
+                "why": ["validation gap 8435 → 198 nm"],
+            }
+        ],
+        "advice": [
+            {
+                "effects": ["dwell_static_friction"],
+                "issue": "all dwell times lie within a factor 2",
+                "experiment": "repeat one move after dwells of 0.05 s, 0.5 s and 5 s",
+            }
+        ],
+        "forward_selection": [
+            {"round": 1, "candidates": [cand, delay]},
+            {"round": 2, "candidates": [delay | {"shrink": -0.4}]},
+        ],
+        "refit_control": [
+            {
+                "round": 2,
+                "restarted_from": "lugre",
+                "train_rms_before_m": 2.061e-7,
+                "train_rms_after_m": 1.832e-7,
+                "validation_rms_before_m": 1.977e-7,
+                "validation_rms_after_m": 1.851e-7,
+            }
+        ],
+        "nominal_parameters": {"plant.dahl.coulomb_force_n": {"value": 28.8, "std_error": 2.37}},
+        "skipped": {"dahl": "the nominal model already uses Dahl friction on the table"},
+        "folds": [{"train": ["a", "b"], "validate": ["c", "d", "e"]}],
+        "timing_s": 92.8,
+        "seed": 3,
+    }
+    md = markdown_report(report)
+    assert "- **Selected:** `backlash`" in md
+    assert "- **Validation gap:** 8400.0 → 200.0 nm RMS (shrink 97.6%)" in md
+    assert "- **Noise floor:** 87.0 nm RMS; unexplained above it: 180.0 nm" in md
+    assert "2 training and 3 validation experiment(s)" in md and "- **Time:** 92.8 s" in md
+    assert "### 1. `backlash` (round 1)" in md
+    assert "- Segments it fixed most: braking: 6036 → 36 nm (+99%)" in md
+    assert "screw lead's spatial period: 50.0% → 25.0%" in md
+    assert "| `backlash.width_m` | 1.442e-05 | 2.2e-08 | m |" in md
+    assert "## Experiment advice" in md
+    assert (
+        "- `dwell_static_friction`: all dwell times lie within a factor 2. **Experiment:** "
+        "repeat one move after dwells of 0.05 s, 0.5 s and 5 s" in md
+    )
+    row = next(line for line in md.splitlines() if line.startswith("| 1 | `backlash`"))
+    assert "| 200.0 | 97.7 % | yes | 0.000 | 210.0 | -13.70 |" in row
+    assert (
+        "width_m = 1.442e-05 ± 2.2e-08 m<br>contact_stiffness_n_per_m = 3.5e+07 ± 2e+05 N/m" in row
+    )
+    assert "validation gap 8435 → 198 nm; bootstrap p = 0.000" in row and "{" not in row
+    assert "samples = 1 |" in md  # a unit that repeats the name is left out
+    assert "| 1 | `backlash` | `backlash` 97.7 %, `sensor_delay` 97.7 % (n.s.) |" in md
+    assert "| 2 | — | `sensor_delay` -40.0 % (n.s.) |" in md
+    assert "| 2 | `lugre` | 206.1 → 183.2 | 197.7 → 185.1 |" in md
+    assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 |" in md
+    assert "| `dahl` | the nominal model already uses Dahl friction on the table |" in md
+    # Rendered above, so not repeated among the other keys; a leftover scalar is.
+    other = md.split("## Other")[1]
+    assert "timing_s" not in other and "noise_floor" not in other and "| seed | 3 |" in other
+    # Without advice in the report there is no advice section; an empty list says so.
+    assert "## Experiment advice" not in markdown_report({"candidates": []})
+    assert "None: the experiments reveal" in markdown_report({"candidates": [], "advice": []})
+
+
 def test_replace_paths_rebuilds_each_level_once_and_checks_every_path() -> None:
     """Several paths in one group and a path into another group: the copy equals the
     dataclass replacements written out; a bad path at any depth raises before anything is

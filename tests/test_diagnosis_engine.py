@@ -177,6 +177,13 @@ def test_an_invalid_parameter_region_is_a_bad_fit_not_the_best(tmp_path: Path) -
     assert np.sum(bad**2) > 1e6 * np.sum(good**2)
     fit = prob.fit(3, FAST, seed=0)
     assert fit.values["plant.motor_friction.coulomb_torque_nm"] <= 1.2e-4
+    # The covariance in normalised coordinates (bounds span 1) is the standard errors'
+    # source: symmetric, positive semi-definite, its diagonal the errors over the widths.
+    cov = fit.unit_covariance
+    assert cov.shape == (2, 2) and np.array_equal(cov, cov.T)
+    assert np.all(np.linalg.eigvalsh(cov) >= -1e-12 * np.max(np.abs(cov)))
+    for i, (n, p) in enumerate(free):
+        assert fit.std_errors[n] == pytest.approx((p.upper - p.lower) * np.sqrt(cov[i, i]))
 
 
 def test_batched_evaluations_equal_one_at_a_time(
@@ -659,6 +666,18 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     md = (tmp_path / "out" / "report.md").read_text()
     assert "asymmetric_friction" in md
     assert f"| shrink | {cf['shrink']:.1%} |" in md
+    # Every candidate parameter has its unit; the evidence repeats the selected effect's
+    # identified parameters (from its round's fit), and the readable report shows them.
+    assert all(d["unit"] for c in r["candidates"] for d in c["parameters"].values()), r[
+        "candidates"
+    ]
+    ev = r["evidence"][0]
+    assert (ev["round"], ev["effect"]) == (1, "asymmetric_friction")
+    assert ev["parameters"] == best["parameters"] and ev["shrink"] == best["shrink"]
+    value = best["parameters"]["asymmetric_friction.asymmetry"]["value"]
+    assert "### 1. `asymmetric_friction` (round 1)" in md
+    assert f"| `asymmetric_friction.asymmetry` | {value:.4g} |" in md
+    assert "## Experiment advice" in md and "## Forward selection" in md
 
 
 def test_indistinguishable_candidates_are_reported_as_ties() -> None:
@@ -695,30 +714,50 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
 
 
 def test_log_occam_factor_by_hand() -> None:
-    """Σ log min(1, σ√(2π)/w) over the candidate's own parameters (log space for a log
-    parameter), minus log of the settings of a discrete candidate; a parameter the data do
-    not constrain (σ = ∞) or whose posterior is wider than its bounds costs nothing."""
+    """½ Σ log min(1, 2πλ) over the eigenvalues λ of the marginal covariance of the
+    candidate's own parameters in normalised coordinates (bounds span 1), minus log of the
+    settings of a discrete candidate: σ√(2π) per uncorrelated parameter, 2πσ₁σ₂√(1−ρ²) for
+    two correlated ones; a parameter the data do not constrain (variance 0 or ∞) or a
+    direction wider than the bounds costs nothing; the nominal parameters do not count."""
     lin = Param(name="f", unit="N", lower=-30.0, upper=30.0, initial=0.0)
-    logp = Param(name="w", unit="m", lower=1e-7, upper=1e-4, initial=5e-6, log=True)
-    wide = Param(name="a", unit="-", lower=-0.6, upper=0.6, initial=0.0)
-    fit = Fit(
-        values={"x.f": 1.2, "x.w": 2e-5, "x.a": 0.1, "x.u": 0.3},
-        std_errors={"x.f": 0.015, "x.w": 1e-7, "x.a": 1.0, "x.u": float("inf")},
-        train_rms_m=1e-8,
-        n_evaluations=1,
-        system=presets.seed(1e-3),
-    )
     r2pi = np.sqrt(2 * np.pi)
-    assert log_occam_factor(fit, [("x.f", lin)]) == pytest.approx(np.log(0.015 * r2pi / 60.0))
-    assert log_occam_factor(fit, [("x.w", logp)]) == pytest.approx(
-        np.log((1e-7 / 2e-5) * r2pi / np.log(1e3))
-    )
-    assert log_occam_factor(fit, [("x.a", wide), ("x.u", wide)]) == 0.0
+    s_f, s_w, s_n, rho = 0.015 / 60.0, 0.004, 0.02, -0.9
+    cov = np.diag([s_n**2, s_f**2, s_w**2, 0.0, 4.0])
+    cov[0, 1] = cov[1, 0] = 0.5 * s_n * s_f  # nominal ↔ f: marginalised away
+
+    def fit_with(c: np.ndarray) -> Fit:
+        return Fit(
+            values={"nominal.k": 1.0, "x.f": 1.2, "x.w": 2e-5, "x.u": 0.3, "x.a": 0.1},
+            std_errors={},
+            train_rms_m=1e-8,
+            n_evaluations=1,
+            system=presets.seed(1e-3),
+            unit_covariance=c,
+        )
+
+    fit = fit_with(cov)
+    one = log_occam_factor(fit, [("x.f", lin)])
+    assert one == pytest.approx(np.log(s_f * r2pi))
+    assert log_occam_factor(fit, [("x.w", lin)]) == pytest.approx(np.log(s_w * r2pi))
+    assert log_occam_factor(fit, [("x.u", lin), ("x.a", lin)]) == 0.0
     assert log_occam_factor(fit, [], n_settings=4) == pytest.approx(-np.log(4))
-    both = log_occam_factor(fit, [("x.f", lin), ("x.w", logp)])
-    assert both == pytest.approx(
-        log_occam_factor(fit, [("x.f", lin)]) + log_occam_factor(fit, [("x.w", logp)])
+    both = log_occam_factor(fit, [("x.f", lin), ("x.w", lin), ("x.u", lin)])
+    assert both == pytest.approx(one + np.log(s_w * r2pi))
+    # Correlated: the posterior is thinner than its standard errors say.
+    cor = cov.copy()
+    cor[1, 2] = cor[2, 1] = rho * s_f * s_w
+    both_cor = log_occam_factor(fit_with(cor), [("x.f", lin), ("x.w", lin)])
+    assert both_cor == pytest.approx(np.log(2 * np.pi * s_f * s_w * np.sqrt(1 - rho**2)))
+    assert both_cor < both
+    # A principal direction wider than the bounds counts as the whole range: a fully
+    # correlated pair of wide parameters costs only its narrow direction.
+    wide = np.diag([1.0, 0.5, 0.5, 0.0, 0.0])
+    wide[1, 2] = wide[2, 1] = 0.5 - 1e-6  # eigenvalues 1 − 1e-6 and 1e-6
+    assert log_occam_factor(fit_with(wide), [("x.f", lin), ("x.w", lin)]) == pytest.approx(
+        0.5 * np.log(2 * np.pi * 1e-6)
     )
+    # No covariance (a failed inversion): nothing but the discrete settings.
+    assert log_occam_factor(fit_with(np.zeros((0, 0))), [("x.f", lin)], 3) == -np.log(3)
 
 
 def test_a_tie_goes_to_the_candidate_with_the_larger_occam_factor() -> None:

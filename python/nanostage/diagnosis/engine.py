@@ -200,6 +200,13 @@ class Fit:
     train_rms_m: float
     n_evaluations: int
     system: System = field(repr=False)
+    #: Covariance of the fitted parameters (in the order of ``values``) in normalised
+    #: coordinates, where each parameter's bounds span 1 (log space for a log parameter);
+    #: the standard errors are its diagonal in physical units. A direction the data do not
+    #: constrain has variance 0 (a pseudo-inverse), not ∞.
+    unit_covariance: FloatArray = field(
+        default_factory=lambda: np.zeros((0, 0)), repr=False, compare=False
+    )
 
 
 class FitProblem:
@@ -417,7 +424,7 @@ class FitProblem:
         values = [
             p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, best.x, strict=True)
         ]
-        std = _std_errors(best, self.params)
+        std, cov = _uncertainty(best, self.params)
         try:
             system = self.build(values)
         except ValueError as exc:
@@ -430,12 +437,14 @@ class FitProblem:
             train_rms_m=self.scale_m * math.sqrt(2.0 * best.cost / len(self.experiments)),
             n_evaluations=self.n_evaluations,
             system=system,
+            unit_covariance=cov,
         )
 
 
-def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
-    """Standard errors from the Jacobian at the optimum, in physical units (residual samples
-    are treated as independent, so they are optimistic for correlated residuals)."""
+def _uncertainty(sol: Any, params: Sequence[tuple[str, Param]]) -> tuple[list[float], FloatArray]:
+    """Standard errors in physical units, and the covariance in the fit's normalised
+    coordinates, from the Jacobian at the optimum (residual samples are autocorrelated: the
+    variance is inflated by the residual's integrated autocorrelation time)."""
     jac = np.asarray(sol.jac, dtype=np.float64)
     n, k = jac.shape
     dof = max(n - k, 1)
@@ -445,7 +454,8 @@ def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
     try:
         cov = np.linalg.pinv(jac.T @ jac) * s2
     except np.linalg.LinAlgError:
-        return [math.inf] * k
+        return [math.inf] * k, np.zeros((0, 0))
+    cov = 0.5 * (cov + cov.T)  # exactly symmetric (the pseudo-inverse is to rounding)
     out = []
     for i, (_, p) in enumerate(params):
         u = float(sol.x[i]) - 1.0
@@ -455,7 +465,7 @@ def _std_errors(sol: Any, params: Sequence[tuple[str, Param]]) -> list[float]:
         )
         var = float(cov[i, i])
         out.append(abs(dv) * math.sqrt(var) if var > 0 and math.isfinite(var) else math.inf)
-    return out
+    return out, np.asarray(cov, dtype=np.float64)
 
 
 def hold_intervals(reference_m: npt.ArrayLike, min_samples: int = 20) -> list[tuple[int, int]]:
@@ -847,9 +857,11 @@ class CandidateResult:
     validation_units: FloatArray | None = None
     #: Log Occam factor of the candidate's own parameters (:func:`log_occam_factor`).
     log_occam: float = 0.0
+    #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
+    units: Mapping[str, str] = field(default_factory=dict)
 
-    def to_dict(self, params: Sequence[tuple[str, Param]]) -> dict[str, Any]:
-        units = {n: p.unit for n, p in params}
+    def to_dict(self) -> dict[str, Any]:
+        units = self.units
         return {
             "effect": self.effect,
             "validation_rms_m": self.validation_rms_m,
@@ -903,26 +915,39 @@ def indistinguishable(a: CandidateResult, b: CandidateResult) -> bool:
 
 def log_occam_factor(fit: Fit, params: Sequence[tuple[str, Param]], n_settings: int = 0) -> float:
     """Log of the Occam factor of a candidate's own parameters ``params`` (``(name in
-    fit.values, Param)``): Σ log min(1, σᵢ·√(2π) / wᵢ), with σᵢ the fit's standard error and
-    wᵢ the width of the parameter's bounds (both in log space for a log parameter), minus
-    log ``n_settings`` for a discrete candidate (one of its settings). It is the factor by
-    which the Laplace approximation of the Bayesian evidence, with a uniform prior on the
-    bounds, falls short of the best fit's likelihood: small when the data pin a parameter
-    down to a sliver of its plausible range. A standard error that is not finite (the data
-    do not constrain the parameter) counts as the whole range (factor 1); standard errors
-    are per parameter (correlations between a candidate's parameters are ignored, which
-    favours candidates with correlated parameters)."""
+    fit.values, Param)``): the factor by which the Laplace approximation of the Bayesian
+    evidence, with a uniform prior on the parameters' bounds, falls short of the best fit's
+    likelihood, minus log ``n_settings`` for a discrete candidate (one of its settings).
+
+    In the fit's normalised coordinates every parameter's bounds span 1 (log space for a
+    log parameter), so the factor is the posterior's volume √det(2πΣ), Σ the marginal
+    covariance of the candidate's own parameters (:attr:`Fit.unit_covariance`): small when
+    the data pin the parameters down to a sliver of their plausible ranges. Correlated
+    parameters pin down less volume than their standard errors alone say (√(1−ρ²) for two).
+    Each principal direction counts at most its whole range: ½ Σⱼ log min(1, 2πλⱼ) over
+    the eigenvalues λⱼ of Σ. A parameter the data do not constrain (variance 0 from the
+    pseudo-inverse, or not finite), and a direction of Σ with a numerically zero variance,
+    count as their whole range (factor 1)."""
     out = -math.log(n_settings) if n_settings > 1 else 0.0
-    for name, p in params:
-        se = fit.std_errors.get(name, math.inf)
-        if not math.isfinite(se) or se <= 0.0:
-            continue
-        if p.log:
-            width = math.log(p.upper / p.lower)
-            se = se / abs(fit.values[name])
-        else:
-            width = p.upper - p.lower
-        out += math.log(min(1.0, se * math.sqrt(2.0 * math.pi) / width))
+    names = list(fit.values)
+    cov = fit.unit_covariance
+    if cov.shape != (len(names), len(names)):
+        return out  # no covariance (the standard errors are not finite either)
+    idx = [names.index(n) for n, _ in params if n in fit.values]
+    sub = cov[np.ix_(idx, idx)]
+    keep = [
+        i
+        for i in range(len(idx))
+        if sub[i, i] > 0.0 and bool(np.all(np.isfinite(sub[i])) and np.all(np.isfinite(sub[:, i])))
+    ]
+    if not keep:
+        return out
+    sub = sub[np.ix_(keep, keep)]
+    lam = np.linalg.eigvalsh(sub)
+    tiny = float(np.max(lam)) * len(keep) * np.finfo(np.float64).eps
+    for v in lam:
+        if v > tiny:
+            out += 0.5 * math.log(min(1.0, 2.0 * math.pi * float(v)))
     return out
 
 
@@ -1217,6 +1242,7 @@ def diagnose_experiments(
             ctx.warm[:] = [_free_values(f, free) for f in current_fits]
             if rnd == 0:
                 nominal_fits, base_ms = current_fits, current_ms
+            old_results = results
             results = [
                 _verdict(
                     r.effect,
@@ -1231,9 +1257,13 @@ def diagnose_experiments(
                     r.index,
                     r.validation_units,
                     current_units,
-                    r.log_occam,
                 )
                 for r in results
+            ]
+            # What does not depend on the baseline is carried over.
+            results = [
+                dataclasses.replace(new, log_occam=r.log_occam, units=r.units)
+                for new, r in zip(results, old_results, strict=True)
             ]
             results.sort(key=lambda r: r.validation_rms_m)
         rounds.append(results)
@@ -1346,6 +1376,7 @@ def crossfit_models(
     k: int,
     adapt: Adapt,
     settings: DiagnosisSettings,
+    cache: SimulationCache | None = None,
 ) -> list[tuple[list[Experiment], System, System]]:
     """Cross-fitting of the nominal and the selected model over the validation experiments:
     for each fold of :func:`crossfit_folds`, both models are refitted (one local fit from
@@ -1354,7 +1385,9 @@ def crossfit_models(
     training experiments plus the other folds' validation experiments. Returns, per fold,
     the experiments it judges and the two refitted systems. Each validation experiment is
     judged by models whose fit never saw it, fitted on nearly all the data, as a user would
-    recalibrate before using the model: the gap they leave is the shrink to expect then."""
+    recalibrate before using the model: the gap they leave is the shrink to expect then.
+    With ``cache`` (the diagnosis's), the folds' shared simulations (the first Jacobian at
+    the common warm start, on the experiments the folds have in common) are looked up."""
     exps = list(train) + list(validate)
     nf = len(free)
 
@@ -1382,7 +1415,7 @@ def crossfit_models(
                     at += len(cand.params)
             return s
 
-        return FitProblem(params, build, training, settings.workers, adapt)
+        return FitProblem(params, build, training, settings.workers, adapt, cache)
 
     jobs = []
     for tr, judged in crossfit_folds(len(train), len(validate), k):
@@ -1526,7 +1559,7 @@ def _judge(
             cand.scan_starts,
         )
         k_params = len(cand.params)
-    return _verdict(
+    result = _verdict(
         cand.name,
         fits,
         ms,
@@ -1539,7 +1572,11 @@ def _judge(
         index,
         units,
         base_units,
-        log_occam_factor(fits[0], extra, len(cand.discrete)),
+    )
+    return dataclasses.replace(
+        result,
+        log_occam=log_occam_factor(fits[0], extra, len(cand.discrete)),
+        units={n: p.unit for n, p in extra},
     )
 
 
@@ -1556,11 +1593,10 @@ def _verdict(
     index: int,
     units: FloatArray | None = None,
     base_units: FloatArray | None = None,
-    log_occam: float = 0.0,
 ) -> CandidateResult:
     """Judge fitted candidate results against the model before (``base_ms``). The bootstrap
     resamples validation moves (``units``/``base_units``) when both are given, else
-    experiments. ``log_occam`` is carried into the result (:func:`log_occam_factor`)."""
+    experiments."""
     st = ctx.st
     d = base_ms - ms
     # The rules weigh each validation experiment by its own noise floor (all 1 without
@@ -1640,5 +1676,4 @@ def _verdict(
         index=index,
         k_params=k_params,
         validation_units=units,
-        log_occam=log_occam,
     )

@@ -322,6 +322,239 @@ def _limit_cycles(gap: Any) -> str:
     return _table(["Experiment", "Move", "Amplitude [µm]", "Period [ms]"], rows)
 
 
+def _nm(v: Any) -> str:
+    f = _num(v)
+    return "—" if f is None else f"{f * 1e9:.1f}"
+
+
+def _pct(v: Any) -> str:
+    f = _num(v)
+    return "—" if f is None else f"{100.0 * f:.1f} %"
+
+
+def _value(v: Any, unit: Any = None) -> str:
+    """A parameter value with its unit (none for a dimensionless ``-``)."""
+    f = _num(v)
+    text = _md_escape(str(v)) if f is None else f"{f:.4g}"
+    return text + (f" {_md_escape(str(unit))}" if unit and unit != "-" else "")
+
+
+def _parameters(params: Any) -> str:
+    """``name = value ± std. error unit`` per parameter (the effect's prefix dropped),
+    joined for a table cell."""
+    if not isinstance(params, Mapping) or not params:
+        return "—"
+    cells = []
+    for name, d in params.items():
+        short = str(name).split(".", 1)[-1]
+        if not isinstance(d, Mapping):
+            cells.append(f"{_md_escape(short)} = {_value(d)}")
+            continue
+        se = _num(d.get("std_error"))
+        unit = d.get("unit")
+        err = "" if se is None else f" ± {se:.2g}"
+        # A unit that only repeats the name (a delay's "samples") is left out.
+        shown = unit and unit not in ("-", short)
+        cells.append(
+            f"{_md_escape(short)} = {_value(d.get('value'))}{err}"
+            + (f" {_md_escape(str(unit))}" if shown else "")
+        )
+    return "<br>".join(cells)
+
+
+def _is_diagnosis_candidate(c: Any) -> bool:
+    return isinstance(c, Mapping) and "effect" in c and "validation_rms_m" in c
+
+
+def _candidates_table(cands: Sequence[Mapping[str, Any]]) -> str:
+    """The diagnosis's candidates: gaps in nm, shrink in %, parameters with errors, the
+    reasons in words (the per-experiment gaps are in report.json)."""
+    head = [
+        "#",
+        "effect",
+        "validation gap [nm]",
+        "shrink",
+        "significant",
+        "p",
+        "training gap [nm]",
+        "log Occam",
+        "parameters (± std. error)",
+        "why",
+    ]
+    rows = []
+    for i, c in enumerate(cands):
+        p = _num(c.get("p_value"))
+        occam = _num(c.get("log_occam_factor"))
+        why = c.get("why")
+        rows.append(
+            [
+                str(i + 1),
+                f"`{_md_escape(str(c.get('effect')))}`",
+                _nm(c.get("validation_rms_m")),
+                _pct(c.get("shrink")),
+                _fmt("significant", bool(c.get("significant"))),
+                "—" if p is None else f"{p:.3f}",
+                _nm(c.get("train_rms_m")),
+                "—" if occam is None else f"{occam:.2f}",
+                _parameters(c.get("parameters")),
+                _md_escape("; ".join(str(w) for w in why))
+                if isinstance(why, list | tuple)
+                else _fmt("why", why),
+            ]
+        )
+    return _table(head, rows)
+
+
+def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
+    """The first lines: what was selected, the validation gap before and after, the
+    cross-fitted shrink, the noise floor and what remains unexplained."""
+    lines = []
+    sel = report.get("selected")
+    if isinstance(sel, list | tuple) and all(isinstance(x, str) for x in sel):
+        lines.append(
+            "- **Selected:** "
+            + (
+                ", ".join(f"`{_md_escape(x)}`" for x in sel)
+                if sel
+                else "none (no candidate shrinks the validation gap by more than noise "
+                "and refitting alone do)"
+            )
+        )
+    b = _num((sb or {}).get("rms_m")) if isinstance(sb, Mapping) else None
+    a = _num((sa or {}).get("rms_m")) if isinstance(sa, Mapping) else None
+    if b is not None and a is not None:
+        shrink = f" (shrink {1.0 - a / b:.1%})" if b > 0 else ""
+        lines.append(f"- **Validation gap:** {b * 1e9:.1f} → {a * 1e9:.1f} nm RMS{shrink}")
+    cf = report.get("crossfit")
+    if isinstance(cf, Mapping) and _num(cf.get("shrink")) is not None:
+        lines.append(
+            f"- **Cross-fitted** (each validation experiment judged by models refitted on "
+            f"all the others): {_nm(cf.get('gap_before_rms_m'))} → "
+            f"{_nm(cf.get('gap_after_rms_m'))} nm (shrink {float(cf['shrink']):.1%})"
+        )
+    floor = _num(report.get("noise_floor_rms_m"))
+    if floor is not None:
+        text = f"- **Noise floor:** {floor * 1e9:.1f} nm RMS"
+        un = _num(report.get("unexplained_rms_m"))
+        if un is not None:
+            text += f"; unexplained above it: {un * 1e9:.1f} nm"
+        ex = _num(report.get("explained_fraction"))
+        if ex is not None:
+            text += f" ({ex:.0%} of the gap above the floor explained)"
+        lines.append(text)
+    folds = report.get("folds")
+    if isinstance(folds, list | tuple) and folds and all(isinstance(f, Mapping) for f in folds):
+        n_t = sum(len(f.get("train", [])) for f in folds)
+        n_v = sum(len(f.get("validate", [])) for f in folds)
+        lines.append(
+            f"- **Experiments:** {len(folds)} fold(s), {n_t} training and {n_v} validation "
+            "experiment(s) in all"
+        )
+    t = _num(report.get("timing_s"))
+    if t is not None:
+        lines.append(f"- **Time:** {t:.1f} s")
+    return "\n".join(lines) + "\n" if lines else ""
+
+
+def _evidence(evidence: Sequence[Any], ties: Any, tie_break: Any) -> str:
+    """Per selected effect: how much it shrank the gap against the model before, which
+    segments it fixed, its parameters with their errors, a tie."""
+    out = []
+    for i, ev in enumerate(evidence):
+        if not isinstance(ev, Mapping):
+            continue
+        name = str(ev.get("effect"))
+        rnd = ev.get("round", i + 1)
+        out.append(f"### {i + 1}. `{_md_escape(name)}` (round {rnd})\n")
+        items = []
+        for w in ev.get("why") or []:
+            items.append(f"- {_md_escape(str(w))}")
+        fixed = ev.get("segments_fixed") or []
+        if fixed:
+            items.append(
+                "- Segments it fixed most: " + "; ".join(_md_escape(str(x)) for x in fixed)
+            )
+        lb, la = _num(ev.get("lead_share_before")), _num(ev.get("lead_share_after"))
+        if lb is not None and la is not None:
+            items.append(
+                f"- Residual power near the screw lead's spatial period: {lb:.1%} → {la:.1%}"
+            )
+        if isinstance(ties, Mapping) and ties.get(name):
+            how = (
+                "the larger Occam factor"
+                if tie_break == "occam_factor"
+                else "the smaller validation gap"
+            )
+            items.append(
+                "- The validation data cannot tell it from "
+                + ", ".join(f"`{_md_escape(str(t))}`" for t in ties[name])
+                + f"; selected by {how} (see the advice)"
+            )
+        out.append("\n".join(items) + "\n")
+        params = ev.get("parameters")
+        if isinstance(params, Mapping) and params:
+            rows = []
+            for pname, d in params.items():
+                d = d if isinstance(d, Mapping) else {"value": d}
+                se = _num(d.get("std_error"))
+                rows.append(
+                    [
+                        f"`{_md_escape(str(pname))}`",
+                        _value(d.get("value")),
+                        "—" if se is None else f"{se:.3g}",
+                        _md_escape(str(d.get("unit") or "—")),
+                    ]
+                )
+            out.append(_table(["parameter", "value", "std. error", "unit"], rows))
+    return "\n".join(out)
+
+
+def _advice(advice: Sequence[Any]) -> str:
+    if not advice:
+        return (
+            "None: the experiments reveal every candidate's signature and no two "
+            "significant candidates fit the validation data equally well.\n"
+        )
+    lines = []
+    for a in advice:
+        if not isinstance(a, Mapping):
+            lines.append(f"- {_md_escape(str(a))}")
+            continue
+        effects = ", ".join(f"`{_md_escape(str(e))}`" for e in a.get("effects") or [])
+        lines.append(
+            f"- {effects}: {_md_escape(str(a.get('issue', '')))}. "
+            f"**Experiment:** {_md_escape(str(a.get('experiment', '')))}"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _forward_selection(rounds: Sequence[Any], selected: Sequence[Any], top: int = 4) -> str:
+    """One row per round: what it selected, and its best candidates with their shrink."""
+    rows = []
+    for i, rnd in enumerate(rounds):
+        if not isinstance(rnd, Mapping):
+            continue
+        cands = [c for c in rnd.get("candidates") or [] if isinstance(c, Mapping)]
+        pick = selected[i] if i < len(selected) else None
+        best = ", ".join(
+            f"`{_md_escape(str(c.get('effect')))}` {_pct(c.get('shrink'))}"
+            + ("" if c.get("significant") else " (n.s.)")
+            for c in cands[:top]
+        )
+        rows.append(
+            [
+                str(rnd.get("round", i + 1)),
+                "—" if pick is None else f"`{_md_escape(str(pick))}`",
+                best or "—",
+            ]
+        )
+    return _table(["round", "selected", f"best {top} (shrink against the model before)"], rows)
+
+
+def _name_table(items: Mapping[str, Any], head: Sequence[str]) -> str:
+    return _table(head, [[f"`{_md_escape(str(k))}`", _md_escape(str(v))] for k, v in items.items()])
+
+
 def markdown_report(
     report: Mapping[str, Any],
     *,
@@ -353,6 +586,53 @@ def markdown_report(
         else None
     )
     out = [f"# {_md_escape(title)}\n"]
+    summary = _summary(report, sb, sa)
+    if summary:
+        out.append(summary)
+    if "selected" in report:
+        out.append("## Selected\n")
+        sel = report["selected"]
+        ties = report.get("indistinguishable") or {}
+        if isinstance(sel, Mapping):
+            out.append(_records_table([sel]))
+        elif isinstance(sel, list | tuple) and sel and all(isinstance(s, Mapping) for s in sel):
+            out.append(_records_table(list(sel)))
+        elif isinstance(sel, list | tuple):
+            out.append(
+                "\n".join(
+                    f"- `{_md_escape(str(s))}`"
+                    + (
+                        " — the validation data cannot tell it from "
+                        + ", ".join(f"`{_md_escape(t)}`" for t in ties[s])
+                        + " (see the advice)"
+                        + (
+                            "; selected by the larger Occam factor (its parameters "
+                            "pinned down to a larger share of their bounds)"
+                            if report.get("tie_break") == "occam_factor"
+                            else "; selected by the smaller validation gap"
+                        )
+                        if isinstance(ties, Mapping) and ties.get(s)
+                        else ""
+                    )
+                    for s in sel
+                )
+                + "\n"
+                if sel
+                else "None.\n"
+            )
+        else:
+            out.append(f"{_md_escape(str(sel))}\n")
+        evidence = report.get("evidence")
+        if isinstance(evidence, list | tuple) and evidence:
+            out.append(
+                "What each selected effect fixed, against the model before it was added, "
+                "and its identified parameters (standard errors from the fit's Jacobian, "
+                "inflated for correlated residuals).\n"
+            )
+            out.append(_evidence(evidence, ties, report.get("tie_break")))
+    if isinstance(report.get("advice"), list | tuple):
+        out.append("## Experiment advice\n")
+        out.append(_advice(report["advice"]))
     if sb is not None or sa is not None:
         out.append("## Gap per segment\n")
         out.append(
@@ -381,43 +661,6 @@ def markdown_report(
             "short).\n"
         )
         out.append(_table(["", "Period [mm]", "Power share"], lead_rows))
-    if "candidates" in report:
-        out.append("## Candidates (ranked)\n")
-        cands = report["candidates"]
-        out.append(_records_table(list(cands)) if cands else "No candidates.\n")
-    if "selected" in report:
-        out.append("## Selected\n")
-        sel = report["selected"]
-        if isinstance(sel, Mapping):
-            out.append(_records_table([sel]))
-        elif isinstance(sel, list | tuple) and sel and all(isinstance(s, Mapping) for s in sel):
-            out.append(_records_table(list(sel)))
-        elif isinstance(sel, list | tuple):
-            ties = report.get("indistinguishable") or {}
-            out.append(
-                "\n".join(
-                    f"- `{_md_escape(str(s))}`"
-                    + (
-                        " — the validation data cannot tell it from "
-                        + ", ".join(f"`{_md_escape(t)}`" for t in ties[s])
-                        + " (see the advice)"
-                        + (
-                            "; selected by the larger Occam factor (its parameters "
-                            "pinned down to a larger share of their bounds)"
-                            if report.get("tie_break") == "occam_factor"
-                            else "; selected by the smaller validation gap"
-                        )
-                        if isinstance(ties, Mapping) and ties.get(s)
-                        else ""
-                    )
-                    for s in sel
-                )
-                + "\n"
-                if sel
-                else "None.\n"
-            )
-        else:
-            out.append(f"{_md_escape(str(sel))}\n")
     cf = report.get("crossfit")
     if isinstance(cf, Mapping) and _num(cf.get("shrink")) is not None:
         b, a = _num(cf.get("gap_before_rms_m")), _num(cf.get("gap_after_rms_m"))
@@ -437,6 +680,68 @@ def markdown_report(
                 ],
             )
         )
+    if "candidates" in report:
+        out.append("## Candidates (ranked)\n")
+        cands = list(report["candidates"])
+        if cands and all(_is_diagnosis_candidate(c) for c in cands):
+            out.append(
+                "Round 1: every candidate added to the calibrated nominal model alone, best "
+                "validation gap first (shrink: the fraction of the validation gap removed; "
+                "log Occam: the tie-break, larger is simpler; the gap per validation "
+                "experiment is in report.json).\n"
+            )
+            out.append(_candidates_table(cands))
+        else:
+            out.append(_records_table(cands) if cands else "No candidates.\n")
+    rounds = report.get("forward_selection")
+    if isinstance(rounds, list | tuple) and rounds:
+        sel = report.get("selected")
+        out.append("## Forward selection\n")
+        out.append(_forward_selection(rounds, sel if isinstance(sel, list | tuple) else []))
+    refits = report.get("refit_control")
+    if isinstance(refits, list | tuple) and refits:
+        out.append("## Refit control\n")
+        out.append(
+            "The model before, refitted from a candidate's free values: where that fits "
+            "the training experiments better it became the baseline of the round (refitting "
+            "alone is not credited to an effect).\n"
+        )
+        out.append(
+            _table(
+                [
+                    "round",
+                    "restarted from",
+                    "training gap [nm]",
+                    "validation gap [nm]",
+                ],
+                [
+                    [
+                        str(r.get("round")),
+                        f"`{_md_escape(str(r.get('restarted_from')))}`",
+                        f"{_nm(r.get('train_rms_before_m'))} → {_nm(r.get('train_rms_after_m'))}",
+                        f"{_nm(r.get('validation_rms_before_m'))} → "
+                        f"{_nm(r.get('validation_rms_after_m'))}",
+                    ]
+                    for r in refits
+                    if isinstance(r, Mapping)
+                ],
+            )
+        )
+    nominal = report.get("nominal_parameters")
+    if isinstance(nominal, Mapping) and nominal:
+        out.append("## Calibrated nominal parameters\n")
+        rows = []
+        for pname, d in nominal.items():
+            d = d if isinstance(d, Mapping) else {"value": d}
+            se = _num(d.get("std_error"))
+            rows.append(
+                [
+                    f"`{_md_escape(str(pname))}`",
+                    _value(d.get("value")),
+                    "—" if se is None else f"{se:.3g}",
+                ]
+            )
+        out.append(_table(["parameter (SI units)", "value", "std. error"], rows))
     feats = _features_table(before, after)
     if feats:
         out.append("## Response features, measured vs simulated\n")
@@ -449,17 +754,33 @@ def markdown_report(
     if lc:
         out.append("## Limit cycles in hold\n")
         out.append(lc)
+    skipped = report.get("skipped")
+    if isinstance(skipped, Mapping) and skipped:
+        out.append("## Not fitted\n")
+        out.append(_name_table(skipped, ["effect", "why"]))
     known = {
         "gap_before",
         "gap_after",
+        "gap_best_single",
         "candidates",
         "selected",
         "indistinguishable",
         "tie_break",
         "crossfit",
+        "evidence",
+        "advice",
+        "forward_selection",
+        "refit_control",
+        "nominal_parameters",
+        "skipped",
+        "folds",
+        "noise_floor_rms_m",
+        "unexplained_rms_m",
+        "explained_fraction",
+        "timing_s",
     }
     extra = [
-        [_md_escape(str(k)), _fmt(str(k), v)]
+        [_md_escape(str(k)) + _unit(str(k)), _fmt(str(k), v)]
         for k, v in report.items()
         if k not in known and (_num(v) is not None or isinstance(v, str | bool) or v is None)
     ]

@@ -463,6 +463,7 @@ def _crossfit(
         k=st.crossfit_folds,
         adapt=setup.adapt,
         settings=st,
+        cache=out["cache"],
     )
     # Both models of every fold in one batch: the judged experiments once with the nominal
     # refit, once with the selected one.
@@ -522,13 +523,13 @@ def assemble_report(
         if single_best
         else None
     )
-    candidates = [r.to_dict([]) for r in first]
+    candidates = [r.to_dict() for r in first]
     evidence = []
     previous = before
-    for rnd, name in zip(rounds, out["selected"], strict=False):
+    for i, (rnd, name) in enumerate(zip(rounds, out["selected"], strict=False)):
         r = next(x for x in rnd if x.effect == name)
         ev, previous = _evidence(r, previous, val, folds, adapt, lead_m, cache)
-        evidence.append(ev)
+        evidence.append({"round": i + 1} | ev)
     floor = float(out["floor_rms_m"])
     total_after = float(after["total_rms_m"])
     penalty = st.penalty_base + st.penalty_per_param
@@ -605,8 +606,12 @@ def _evidence(
     fixed.sort(reverse=True)
     words = [f"{k}: {rb * 1e9:.0f} → {ra * 1e9:.0f} nm ({s:+.0%})" for s, k, rb, ra in fixed[:3]]
     lead_b, lead_a = before.get("lead_share"), mine.get("lead_share")
+    as_dict = r.to_dict()
     return {
         "effect": r.effect,
+        "shrink": r.shrink,
+        "p_value": r.p_value,
+        "parameters": as_dict["parameters"],
         "segments_fixed": words,
         "lead_share_before": lead_b,
         "lead_share_after": lead_a,
