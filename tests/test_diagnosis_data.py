@@ -966,7 +966,7 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
     }
     md = markdown_report(report)
     assert "- **Selected:** `backlash`" in md
-    assert "- **Validation gap:** 8400.0 → 200.0 nm RMS (shrink 97.6%)" in md
+    assert "pooled): 8400.0 → 200.0 nm RMS (shrink 97.6%)" in md
     assert "- **Noise floor:** 87.0 nm RMS; unexplained above it: 180.0 nm" in md
     assert "2 training and 3 validation experiment(s)" in md and "- **Time:** 92.8 s" in md
     assert "### 1. `backlash` (round 1)" in md

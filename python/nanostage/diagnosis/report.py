@@ -424,7 +424,10 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     a = _num((sa or {}).get("rms_m")) if isinstance(sa, Mapping) else None
     if b is not None and a is not None:
         shrink = f" (shrink {1.0 - a / b:.1%})" if b > 0 else ""
-        lines.append(f"- **Validation gap:** {b * 1e9:.1f} → {a * 1e9:.1f} nm RMS{shrink}")
+        lines.append(
+            f"- **Validation gap** (all validation samples pooled): {b * 1e9:.1f} → "
+            f"{a * 1e9:.1f} nm RMS{shrink}"
+        )
     cf = report.get("crossfit")
     if isinstance(cf, Mapping) and _num(cf.get("shrink")) is not None:
         lines.append(
@@ -625,9 +628,11 @@ def markdown_report(
         evidence = report.get("evidence")
         if isinstance(evidence, list | tuple) and evidence:
             out.append(
-                "What each selected effect fixed, against the model before it was added, "
-                "and its identified parameters (standard errors from the fit's Jacobian, "
-                "inflated for correlated residuals).\n"
+                "What each selected effect fixed, against the model before it was added "
+                "(validation gaps here and in the candidates count each validation "
+                "experiment's mean square equally, so they differ from the pooled gap of "
+                "the summary), and its identified parameters (standard errors from the "
+                "fit's Jacobian, inflated for correlated residuals).\n"
             )
             out.append(_evidence(evidence, ties, report.get("tie_break")))
     if isinstance(report.get("advice"), list | tuple):
@@ -686,7 +691,8 @@ def markdown_report(
         if cands and all(_is_diagnosis_candidate(c) for c in cands):
             out.append(
                 "Round 1: every candidate added to the calibrated nominal model alone, best "
-                "validation gap first (shrink: the fraction of the validation gap removed; "
+                "validation gap first (the RMS over the validation experiments, each "
+                "experiment's mean square counted equally; shrink: the fraction of it removed; "
                 "log Occam: the tie-break, larger is simpler; the gap per validation "
                 "experiment is in report.json).\n"
             )
