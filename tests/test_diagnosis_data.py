@@ -959,6 +959,9 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
             }
         ],
         "nominal_parameters": {"plant.dahl.coulomb_force_n": {"value": 28.8, "std_error": 2.37}},
+        "selected_model_parameters": {
+            "plant.dahl.coulomb_force_n": {"value": 31.5, "std_error": 0.8}
+        },
         "skipped": {"dahl": "the nominal model already uses Dahl friction on the table"},
         "folds": [{"train": ["a", "b"], "validate": ["c", "d", "e"]}],
         "timing_s": 92.8,
@@ -988,7 +991,9 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
     assert "| 1 | `backlash` | `backlash` 97.7 %, `sensor_delay` 97.7 % (n.s.) |" in md
     assert "| 2 | — | `sensor_delay` -40.0 % (n.s.) |" in md
     assert "| 2 | `lugre` | 206.1 → 183.2 | 197.7 → 185.1 |" in md
-    assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 |" in md
+    assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 | 31.5 | 0.8 |" in md
+    nothing = markdown_report(report | {"selected": []})
+    assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 |\n" in nothing
     assert "| `dahl` | the nominal model already uses Dahl friction on the table |" in md
     # Rendered above, so not repeated among the other keys; a leftover scalar is.
     other = md.split("## Other")[1]

@@ -678,6 +678,9 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     assert "### 1. `asymmetric_friction` (round 1)" in md
     assert f"| `asymmetric_friction.asymmetry` | {value:.4g} |" in md
     assert "## Experiment advice" in md and "## Forward selection" in md
+    # The free nominal parameters alone and refitted with the selected effect.
+    assert set(r["selected_model_parameters"]) == set(r["nominal_parameters"]) != set()
+    assert "| with the selected effects |" in md
 
 
 def test_indistinguishable_candidates_are_reported_as_ties() -> None:

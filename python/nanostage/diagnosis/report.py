@@ -735,19 +735,27 @@ def markdown_report(
         )
     nominal = report.get("nominal_parameters")
     if isinstance(nominal, Mapping) and nominal:
+        with_effects = report.get("selected_model_parameters")
+        with_effects = (
+            with_effects if isinstance(with_effects, Mapping) and report.get("selected") else {}
+        )
         out.append("## Calibrated nominal parameters\n")
+        head = ["parameter (SI units)", "nominal model", "std. error"]
+        if with_effects:
+            out.append(
+                "Calibrated on the training experiments: the nominal model alone, and "
+                "refitted with the selected effects.\n"
+            )
+            head += ["with the selected effects", "std. error"]
         rows = []
         for pname, d in nominal.items():
-            d = d if isinstance(d, Mapping) else {"value": d}
-            se = _num(d.get("std_error"))
-            rows.append(
-                [
-                    f"`{_md_escape(str(pname))}`",
-                    _value(d.get("value")),
-                    "—" if se is None else f"{se:.3g}",
-                ]
-            )
-        out.append(_table(["parameter (SI units)", "value", "std. error"], rows))
+            row = [f"`{_md_escape(str(pname))}`"]
+            for src in (d, with_effects.get(pname)) if with_effects else (d,):
+                src = src if isinstance(src, Mapping) else {"value": src}
+                se = _num(src.get("std_error"))
+                row += [_value(src.get("value")), "—" if se is None else f"{se:.3g}"]
+            rows.append(row)
+        out.append(_table(head, rows))
     feats = _features_table(before, after)
     if feats:
         out.append("## Response features, measured vs simulated\n")
@@ -778,6 +786,7 @@ def markdown_report(
         "forward_selection",
         "refit_control",
         "nominal_parameters",
+        "selected_model_parameters",
         "skipped",
         "folds",
         "noise_floor_rms_m",

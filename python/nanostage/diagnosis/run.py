@@ -566,15 +566,25 @@ def assemble_report(
         "advice": experiment_advice(val + [e for t, _ in folds for e in t], lead_m, first, penalty),
         "skipped": dict(out["skipped"]),
         "refit_control": list(out.get("refit_control", [])),
-        "nominal_parameters": {
-            n: {"value": v, "std_error": out["nominal"].std_errors.get(n)}
-            for n, v in out["nominal"].values.items()
-        },
+        "nominal_parameters": _free_parameters(out["nominal"], out["nominal"]),
+        # The free nominal parameters as refitted with the selected effects (their values
+        # move with the effect: a backlash takes up some of the friction).
+        "selected_model_parameters": _free_parameters(out["final_fits"][0], out["nominal"]),
         "folds": [
             {"train": [e.name for e in t], "validate": [e.name for e in v]} for t, v in folds
         ],
         "timing_s": out["timing_s"],
         "simulations": dict(out["simulations"]),
+    }
+
+
+def _free_parameters(fit: Fit, nominal: Fit) -> dict[str, dict[str, float | None]]:
+    """The free nominal parameters (those of the nominal calibration ``nominal``) of
+    ``fit``: value and standard error."""
+    return {
+        n: {"value": fit.values[n], "std_error": fit.std_errors.get(n)}
+        for n in nominal.values
+        if n in fit.values
     }
 
 
