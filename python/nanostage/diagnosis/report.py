@@ -332,11 +332,10 @@ def _pct(v: Any) -> str:
     return "—" if f is None else f"{100.0 * f:.1f} %"
 
 
-def _value(v: Any, unit: Any = None) -> str:
-    """A parameter value with its unit (none for a dimensionless ``-``)."""
+def _value(v: Any) -> str:
+    """A parameter value (4 significant digits)."""
     f = _num(v)
-    text = _md_escape(str(v)) if f is None else f"{f:.4g}"
-    return text + (f" {_md_escape(str(unit))}" if unit and unit != "-" else "")
+    return _md_escape(str(v)) if f is None else f"{f:.4g}"
 
 
 def _parameters(params: Any) -> str:

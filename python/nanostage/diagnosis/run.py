@@ -567,8 +567,8 @@ def assemble_report(
         "skipped": dict(out["skipped"]),
         "refit_control": list(out.get("refit_control", [])),
         "nominal_parameters": _free_parameters(out["nominal"], out["nominal"]),
-        # The free nominal parameters as refitted with the selected effects (their values
-        # move with the effect: a backlash takes up some of the friction).
+        # The free nominal parameters as refitted with the selected effects (they move when
+        # an effect takes up part of what they fitted before).
         "selected_model_parameters": _free_parameters(out["final_fits"][0], out["nominal"]),
         "folds": [
             {"train": [e.name for e in t], "validate": [e.name for e in v]} for t, v in folds
@@ -616,12 +616,11 @@ def _evidence(
     fixed.sort(reverse=True)
     words = [f"{k}: {rb * 1e9:.0f} → {ra * 1e9:.0f} nm ({s:+.0%})" for s, k, rb, ra in fixed[:3]]
     lead_b, lead_a = before.get("lead_share"), mine.get("lead_share")
-    as_dict = r.to_dict()
     return {
         "effect": r.effect,
         "shrink": r.shrink,
         "p_value": r.p_value,
-        "parameters": as_dict["parameters"],
+        "parameters": r.to_dict()["parameters"],
         "segments_fixed": words,
         "lead_share_before": lead_b,
         "lead_share_after": lead_a,
