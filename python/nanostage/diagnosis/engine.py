@@ -913,9 +913,9 @@ def indistinguishable(a: CandidateResult, b: CandidateResult) -> bool:
     return close and abs(float(np.mean(d))) <= 2.0 * se
 
 
-def log_occam_factor(fit: Fit, params: Sequence[tuple[str, Param]], n_settings: int = 0) -> float:
-    """Log of the Occam factor of a candidate's own parameters ``params`` (``(name in
-    fit.values, Param)``): the factor by which the Laplace approximation of the Bayesian
+def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> float:
+    """Log of the Occam factor of a candidate's own parameters (their ``names`` in
+    ``fit.values``): the factor by which the Laplace approximation of the Bayesian
     evidence, with a uniform prior on the parameters' bounds, falls short of the best fit's
     likelihood, minus log ``n_settings`` for a discrete candidate (one of its settings).
 
@@ -929,11 +929,11 @@ def log_occam_factor(fit: Fit, params: Sequence[tuple[str, Param]], n_settings: 
     pseudo-inverse, or not finite), and a direction of Σ with a numerically zero variance,
     count as their whole range (factor 1)."""
     out = -math.log(n_settings) if n_settings > 1 else 0.0
-    names = list(fit.values)
+    fitted = list(fit.values)
     cov = fit.unit_covariance
-    if cov.shape != (len(names), len(names)):
+    if cov.shape != (len(fitted), len(fitted)):
         return out  # no covariance (the standard errors are not finite either)
-    idx = [names.index(n) for n, _ in params if n in fit.values]
+    idx = [fitted.index(n) for n in names if n in fit.values]
     sub = cov[np.ix_(idx, idx)]
     keep = [
         i
@@ -1242,28 +1242,28 @@ def diagnose_experiments(
             ctx.warm[:] = [_free_values(f, free) for f in current_fits]
             if rnd == 0:
                 nominal_fits, base_ms = current_fits, current_ms
-            old_results = results
+            # Judged again against the new baseline; what does not depend on it (the
+            # Occam factor, the units) is carried over.
             results = [
-                _verdict(
-                    r.effect,
-                    r.fold_fits,
-                    r.validation_ms,
-                    r.validation_command_ms,
-                    r.setting,
-                    r.k_params,
-                    current_ms,
-                    current_cmd,
-                    ctx,
-                    r.index,
-                    r.validation_units,
-                    current_units,
+                dataclasses.replace(
+                    _verdict(
+                        r.effect,
+                        r.fold_fits,
+                        r.validation_ms,
+                        r.validation_command_ms,
+                        r.setting,
+                        r.k_params,
+                        current_ms,
+                        current_cmd,
+                        ctx,
+                        r.index,
+                        r.validation_units,
+                        current_units,
+                    ),
+                    log_occam=r.log_occam,
+                    units=r.units,
                 )
                 for r in results
-            ]
-            # What does not depend on the baseline is carried over.
-            results = [
-                dataclasses.replace(new, log_occam=r.log_occam, units=r.units)
-                for new, r in zip(results, old_results, strict=True)
             ]
             results.sort(key=lambda r: r.validation_rms_m)
         rounds.append(results)
@@ -1575,7 +1575,7 @@ def _judge(
     )
     return dataclasses.replace(
         result,
-        log_occam=log_occam_factor(fits[0], extra, len(cand.discrete)),
+        log_occam=log_occam_factor(fits[0], [n for n, _ in extra], len(cand.discrete)),
         units={n: p.unit for n, p in extra},
     )
 

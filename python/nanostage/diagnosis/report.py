@@ -338,6 +338,13 @@ def _value(v: Any) -> str:
     return _md_escape(str(v)) if f is None else f"{f:.4g}"
 
 
+def _estimate(d: Any) -> list[str]:
+    """A parameter's ``{value, std_error}`` (or a bare value) as two table cells."""
+    d = d if isinstance(d, Mapping) else {"value": d}
+    se = _num(d.get("std_error"))
+    return [_value(d.get("value")), "—" if se is None else f"{se:.3g}"]
+
+
 def _parameters(params: Any) -> str:
     """``name = value ± std. error unit`` per parameter (the effect's prefix dropped),
     joined for a table cell."""
@@ -458,9 +465,10 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     return "\n".join(lines) + "\n" if lines else ""
 
 
-def _evidence(evidence: Sequence[Any], ties: Any, tie_break: Any) -> str:
+def _evidence(evidence: Sequence[Any]) -> str:
     """Per selected effect: how much it shrank the gap against the model before, which
-    segments it fixed, its parameters with their errors, a tie."""
+    segments it fixed, its parameters with their errors (a tie is stated in the list of
+    selected effects above it)."""
     out = []
     for i, ev in enumerate(evidence):
         if not isinstance(ev, Mapping):
@@ -481,32 +489,17 @@ def _evidence(evidence: Sequence[Any], ties: Any, tie_break: Any) -> str:
             items.append(
                 f"- Residual power near the screw lead's spatial period: {lb:.1%} → {la:.1%}"
             )
-        if isinstance(ties, Mapping) and ties.get(name):
-            how = (
-                "the larger Occam factor"
-                if tie_break == "occam_factor"
-                else "the smaller validation gap"
-            )
-            items.append(
-                "- The validation data cannot tell it from "
-                + ", ".join(f"`{_md_escape(str(t))}`" for t in ties[name])
-                + f"; selected by {how} (see the advice)"
-            )
         out.append("\n".join(items) + "\n")
         params = ev.get("parameters")
         if isinstance(params, Mapping) and params:
-            rows = []
-            for pname, d in params.items():
-                d = d if isinstance(d, Mapping) else {"value": d}
-                se = _num(d.get("std_error"))
-                rows.append(
-                    [
-                        f"`{_md_escape(str(pname))}`",
-                        _value(d.get("value")),
-                        "—" if se is None else f"{se:.3g}",
-                        _md_escape(str(d.get("unit") or "—")),
-                    ]
-                )
+            rows = [
+                [
+                    f"`{_md_escape(str(pname))}`",
+                    *_estimate(d),
+                    _md_escape(str((d if isinstance(d, Mapping) else {}).get("unit") or "—")),
+                ]
+                for pname, d in params.items()
+            ]
             out.append(_table(["parameter", "value", "std. error", "unit"], rows))
     return "\n".join(out)
 
@@ -551,10 +544,6 @@ def _forward_selection(rounds: Sequence[Any], selected: Sequence[Any], top: int 
             ]
         )
     return _table(["round", "selected", f"best {top} (shrink against the model before)"], rows)
-
-
-def _name_table(items: Mapping[str, Any], head: Sequence[str]) -> str:
-    return _table(head, [[f"`{_md_escape(str(k))}`", _md_escape(str(v))] for k, v in items.items()])
 
 
 def markdown_report(
@@ -633,7 +622,7 @@ def markdown_report(
                 "the summary), and its identified parameters (standard errors from the "
                 "fit's Jacobian, inflated for correlated residuals).\n"
             )
-            out.append(_evidence(evidence, ties, report.get("tie_break")))
+            out.append(_evidence(evidence))
     if isinstance(report.get("advice"), list | tuple):
         out.append("## Experiment advice\n")
         out.append(_advice(report["advice"]))
@@ -746,14 +735,14 @@ def markdown_report(
                 "refitted with the selected effects.\n"
             )
             head += ["with the selected effects", "std. error"]
-        rows = []
-        for pname, d in nominal.items():
-            row = [f"`{_md_escape(str(pname))}`"]
-            for src in (d, with_effects.get(pname)) if with_effects else (d,):
-                src = src if isinstance(src, Mapping) else {"value": src}
-                se = _num(src.get("std_error"))
-                row += [_value(src.get("value")), "—" if se is None else f"{se:.3g}"]
-            rows.append(row)
+        rows = [
+            [
+                f"`{_md_escape(str(pname))}`",
+                *_estimate(d),
+                *(_estimate(with_effects.get(pname)) if with_effects else []),
+            ]
+            for pname, d in nominal.items()
+        ]
         out.append(_table(head, rows))
     feats = _features_table(before, after)
     if feats:
@@ -770,7 +759,12 @@ def markdown_report(
     skipped = report.get("skipped")
     if isinstance(skipped, Mapping) and skipped:
         out.append("## Not fitted\n")
-        out.append(_name_table(skipped, ["effect", "why"]))
+        out.append(
+            _table(
+                ["effect", "why"],
+                [[f"`{_md_escape(str(k))}`", _md_escape(str(v))] for k, v in skipped.items()],
+            )
+        )
     known = {
         "gap_before",
         "gap_after",
