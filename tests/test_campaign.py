@@ -223,6 +223,9 @@ def test_ctrl_c_stops_within_a_second() -> None:
     long = cycles.step_cycle(
         step_m=100e-6, repeats=1000, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
     )
+    # A shell starts background jobs with SIGINT ignored and pytest keeps that disposition:
+    # install Python's own handler for this test so it passes however pytest was launched.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
     t0 = time.perf_counter()
     timer.start()
@@ -232,6 +235,7 @@ def test_ctrl_c_stops_within_a_second() -> None:
         elapsed = time.perf_counter() - t0
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     assert elapsed < 2.0, elapsed
     assert _core.campaign_stop_requested()
     # The next campaign starts afresh.

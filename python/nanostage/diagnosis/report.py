@@ -20,7 +20,6 @@ which draw with the Agg backend and never show windows.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -30,6 +29,7 @@ from typing import Any, Final
 
 import numpy as np
 
+from ..output import to_jsonable, write_json
 from .segments import PHASES
 
 __all__ = [
@@ -64,51 +64,6 @@ PHASE_COLOURS: Final[Mapping[str, str]] = {
 }
 
 _UM: Final = 1e6
-
-
-# --------------------------------------------------------------------------------------------
-# JSON
-# --------------------------------------------------------------------------------------------
-
-
-def to_jsonable(obj: Any) -> Any:
-    """A JSON-serialisable copy: numpy → Python numbers/lists, NaN/inf → None, dataclasses
-    via ``to_dict()`` (or :func:`dataclasses.asdict`), paths → str, tuples/sets → lists,
-    mapping keys → str."""
-    if obj is None or isinstance(obj, bool | str):
-        return obj
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.ndarray):
-        return [to_jsonable(v) for v in obj.tolist()] if obj.ndim else to_jsonable(obj.item())
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, Mapping):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        to_dict = getattr(obj, "to_dict", None)
-        if callable(to_dict):
-            return to_jsonable(to_dict())
-        return to_jsonable({f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)})
-    if isinstance(obj, set | frozenset):
-        return [to_jsonable(v) for v in sorted(obj, key=str)]
-    if isinstance(obj, list | tuple):
-        return [to_jsonable(v) for v in obj]
-    raise TypeError(f"cannot write {type(obj).__name__} to JSON: {obj!r:.80}")
-
-
-def write_json(data: Any, path: str | Path) -> Path:
-    """Write ``to_jsonable(data)`` as indented JSON (strict: no NaN tokens)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(to_jsonable(data), indent=2, allow_nan=False, ensure_ascii=False)
-    p.write_text(text + "\n", encoding="utf-8")
-    return p
 
 
 # --------------------------------------------------------------------------------------------
