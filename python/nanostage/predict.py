@@ -1,172 +1,248 @@
 """``nanostage predict``: simulate an identified model in closed loop for given references
 and known disturbances, and write the predicted position, velocity and command.
 
-Manifest (TOML)::
+Manifest (TOML): the schema of the diagnosis manifest (docs/diagnosis.md, checked by the
+same code, :func:`nanostage.diagnosis.manifest.load_prediction_manifest`) without its
+diagnosis keys::
 
     [model]
     preset = "emps"                      # a name in nanostage.presets.PRESETS
+    file = "model.toml"                  # optional: overrides from a file
+    travel_m = 0.5                       # optional: the axis travel, m (default: the preset's)
     [model.overrides]                    # identified values (dotted paths into the System)
     "plant.mass_kg" = 94.8
 
-    [[experiment]]
-    name = "pulses"
-    file = "pulses.csv"                  # relative to the manifest
+    [controller]                         # optional gains, as in the diagnosis manifest
 
-Each trace file is a CSV with a header naming ``time_s`` and ``reference_m`` and optionally
-``disturbance_v`` (known command disturbance, added after the controller's saturation),
-``disturbance_n`` (known force on the table) and ``position_m`` (a measurement to compare
-with). ``DIR/<name>.csv`` gets ``time_s, reference_m, position_m, velocity_m_per_s,
-command_v``; ``DIR/predict.json`` the relative errors against a given measurement.
+    [[experiment]]
+    name = "pulses"                      # becomes the output file name pulses.csv
+    file = "pulses.csv"                  # relative to the manifest, inside its folder
+    units = "mm"                         # optional: the file's lengths are in mm
+    columns = { reference_m = "qg" }     # optional column map
+    window_s = [0.0, 10.0]               # optional time window [start, stop)
+
+Each trace file (CSV, ``.npz`` or ``.mat``) has the columns ``time_s`` and ``reference_m``
+and optionally ``disturbance_v`` (known command disturbance, added after the controller's
+saturation), ``disturbance_n`` (known force on the table) and ``position_m`` (a measurement
+to compare with); any other column is an error.
+
+Checks, all before any simulation and before anything is written (a :class:`PredictError`
+naming the manifest key or the file, line and column):
+
+* unknown or misspelt keys (with a "did you mean"), diagnosis-only keys, bad overrides;
+* experiment names must be safe, unique file names (letters, digits, ``_``, ``-``, ``.``;
+  no ``/``, no ``..``, not hidden; unique case-insensitively);
+* trace files must resolve (after symbolic links) inside the manifest's folder, unless
+  ``trace_root`` (CLI ``--trace-root``) names another folder;
+* size limits (:class:`~nanostage.diagnosis.traces.TraceLimits`): 2 000 000 samples and
+  1.02 GB per trace, 10 000 000 samples for all the experiments together
+  (:data:`~nanostage.diagnosis.traces.PREDICTION_MAX_SAMPLES_TOTAL`), checked before a
+  file is read whole;
+* every check of a diagnosis trace: UTF-8, numeric and finite cells, time strictly
+  increasing without gaps or jitter (±50 % of the median step), at least 10 samples, the
+  sample period of the controller;
+* plausibility against the axis travel: a length column whose peak-to-peak exceeds the
+  travel (or a value beyond ten travels from the origin) is taken for millimetres; the
+  message names the fix (``units = "mm"``, or convert). A reference of ``10`` on the seed
+  axis (50 mm travel) is an error, not a 10 m move;
+* the output folder (:func:`nanostage.output.check_output_dir`).
+
+Output, written whole or not at all (:func:`nanostage.output.staged_output`):
+``DIR/<name>.csv`` with ``time_s, reference_m, position_m, velocity_m_per_s, command_v``:
+the encoder reading, its velocity, and the controller output in volts at the amplifier
+input (the controller's output units times ``output_unit_v``, the conversion the diagnosis
+uses: 6.0 V, not 60 000, at the seed axis's limit); ``DIR/predict.json`` (strict JSON)
+with each experiment's sample count, file and, given a measurement, the relative error
+``‖measured − predicted‖ / ‖measured‖`` (null when the measurement is zero throughout).
 """
 
 from __future__ import annotations
 
 import csv
-import json
-import math
-import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from .config import System
-from .diagnosis.manifest import preset_names, preset_system, replace_paths
+from .diagnosis.manifest import (
+    ManifestError,
+    check_total_samples,
+    load_prediction_manifest,
+)
+from .diagnosis.traces import (
+    PREDICTION_COLUMNS,
+    PREDICTION_MAX_SAMPLES_TOTAL,
+    TraceError,
+    TraceLimits,
+    read_prediction_trace,
+)
+from .output import OutputError, check_output_dir, staged_output, write_json
 from .simulate import simulate
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = ["PredictError", "predict", "read_prediction_input"]
 
 FloatArray = npt.NDArray[np.float64]
-_COLUMNS = ("time_s", "reference_m", "disturbance_v", "disturbance_n", "position_m")
+_COLUMNS = PREDICTION_COLUMNS
+#: Header of each output file.
+OUTPUT_COLUMNS = ("time_s", "reference_m", "position_m", "velocity_m_per_s", "command_v")
 
 
 class PredictError(ValueError):
-    """A bad manifest or trace (names the file and the key, line or column)."""
+    """A bad manifest, trace or output folder (names the file and the key, line or
+    column)."""
 
 
-def read_prediction_input(path: Path) -> dict[str, FloatArray]:
-    """Read a prediction trace (CSV, header row): the columns above."""
+def _located(exc: TraceError) -> str:
+    """A trace error as ``<file>: line <n>, column '<c>': <reason>``."""
+    parts = []
+    if exc.line is not None:
+        parts.append(f"line {exc.line}")
+    elif exc.sample is not None:
+        parts.append(f"sample {exc.sample}")
+    if exc.column is not None:
+        parts.append(f"column {exc.column!r}")
+    where = f"{exc.file}: {', '.join(parts)}" if parts else exc.file
+    return f"{where}: {exc.reason}"
+
+
+def _default_limits() -> TraceLimits:
+    return TraceLimits(max_samples_total=PREDICTION_MAX_SAMPLES_TOTAL)
+
+
+def read_prediction_input(
+    path: Path,
+    *,
+    units: str | Mapping[str, str] | None = None,
+    travel_m: float | None = None,
+    limits: TraceLimits | None = None,
+) -> dict[str, FloatArray]:
+    """Read a prediction trace (the columns above), checked as described in the module
+    docstring (:func:`nanostage.diagnosis.traces.read_prediction_trace`).
+
+    Raises
+    ------
+    PredictError
+        Naming the file, the line and the column.
+    """
     try:
-        with path.open(newline="") as f:
-            rows = list(csv.reader(f))
-    except OSError as exc:
-        raise PredictError(f"{path}: cannot read ({exc.strerror})") from exc
-    if not rows:
-        raise PredictError(f"{path}: empty file")
-    head = [h.strip() for h in rows[0]]
-    for req in ("time_s", "reference_m"):
-        if req not in head:
-            raise PredictError(f"{path}: line 1: missing column {req!r} (found {head})")
-    unknown = [h for h in head if h not in _COLUMNS]
-    if unknown:
-        raise PredictError(f"{path}: line 1: unknown columns {unknown}; valid: {_COLUMNS}")
-    cols: dict[str, list[float]] = {h: [] for h in head}
-    for ln, row in enumerate(rows[1:], start=2):
-        if len(row) != len(head):
-            raise PredictError(f"{path}: line {ln}: {len(row)} cells, expected {len(head)}")
-        for h, cell in zip(head, row, strict=True):
-            try:
-                v = float(cell)
-            except ValueError as exc:
-                raise PredictError(
-                    f"{path}: line {ln}, column {h!r}: {cell!r} is not a number"
-                ) from exc
-            if not math.isfinite(v):
-                raise PredictError(f"{path}: line {ln}, column {h!r}: {cell!r} is not finite")
-            cols[h].append(v)
-    out = {h: np.asarray(v, dtype=np.float64) for h, v in cols.items()}
-    t = out["time_s"]
-    if len(t) < 2:
-        raise PredictError(f"{path}: fewer than 2 samples")
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if bad.size:
-        raise PredictError(
-            f"{path}: line {int(bad[0]) + 3}, column 'time_s': time does not increase"
-        )
-    return out
+        return read_prediction_trace(path, units=units, travel_m=travel_m, limits=limits)
+    except TraceError as exc:
+        raise PredictError(_located(exc)) from exc
 
 
-def _model(data: dict[str, Any], path: Path) -> System:
-    model = data.get("model")
-    if not isinstance(model, dict) or "preset" not in model:
-        raise PredictError(f'{path}: key "model.preset": missing (e.g. preset = "emps")')
-    name = model["preset"]
-    if name not in preset_names():
-        raise PredictError(
-            f'{path}: key "model.preset": unknown preset {name!r}; valid: {preset_names()}'
-        )
-    overrides = model.get("overrides", {})
-    if not isinstance(overrides, dict):
-        raise PredictError(f'{path}: key "model.overrides": expected a table')
-    try:
-        system: System = replace_paths(preset_system(name), overrides)
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise PredictError(f'{path}: key "model.overrides": {exc}') from exc
-    return system
+def predict(
+    manifest: str | Path,
+    out_dir: str | Path,
+    *,
+    trace_root: str | Path | None = None,
+    limits: TraceLimits | None = None,
+) -> dict[str, Any]:
+    """Run every experiment of the manifest; returns (and writes) the summary.
 
+    Parameters
+    ----------
+    manifest : str or Path
+        The manifest (module docstring).
+    out_dir : str or Path
+        The output folder: new, empty, or one an earlier nanostage run wrote (replaced).
+    trace_root : str or Path, optional
+        The folder the files named in the manifest must resolve inside; default: the
+        manifest's folder.
+    limits : TraceLimits, optional
+        Size limits; default ``TraceLimits(max_samples_total=PREDICTION_MAX_SAMPLES_TOTAL)``.
 
-def predict(manifest: str | Path, out_dir: str | Path) -> dict[str, Any]:
-    """Run every experiment of the manifest; returns (and writes) the summary."""
+    Returns
+    -------
+    dict
+        ``{"manifest": str, "experiments": {name: {"samples", "file",
+        ["position_relative_error"]}}}``, as written to ``predict.json``.
+
+    Raises
+    ------
+    PredictError
+        Every input and output-folder problem, before any simulation.
+    """
     path = Path(manifest)
     try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise PredictError(f"{path}: cannot read ({exc.strerror})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise PredictError(f"{path}: {exc}") from exc
-    system = _model(data, path)
-    exps = data.get("experiment")
-    if not isinstance(exps, list) or not exps:
-        raise PredictError(f'{path}: key "experiment": at least one [[experiment]] is needed')
+        m = load_prediction_manifest(
+            path, trace_root=trace_root, limits=_default_limits() if limits is None else limits
+        )
+    except ManifestError as exc:
+        raise PredictError(str(exc)) from exc
+    try:
+        check_output_dir(out_dir)
+    except OutputError as exc:
+        raise PredictError(str(exc)) from exc
     inputs = []
-    for i, e in enumerate(exps):
-        if not isinstance(e, dict) or "file" not in e or "name" not in e:
-            raise PredictError(f'{path}: key "experiment[{i}]": needs name and file')
-        f = (path.parent / str(e["file"])).resolve()
-        if not f.exists():
-            raise PredictError(f'{path}: key "experiment[{i}].file": {f} does not exist')
-        cols = read_prediction_input(f)
+    total = 0
+    for spec in m.experiment_specs:
+        system = m.system(spec)
+        try:
+            cols = read_prediction_trace(
+                spec.file,
+                columns=spec.columns,
+                window_s=spec.window_s,
+                units=spec.units,
+                travel_m=m.model.travel_m,
+                limits=m.limits,
+            )
+        except TraceError as exc:
+            raise PredictError(f"{_located(exc)} (experiment {spec.name!r} of {path})") from exc
+        total += len(cols["time_s"])
+        try:
+            check_total_samples(total, m.limits, spec, m.path)
+        except ManifestError as exc:
+            raise PredictError(str(exc)) from exc
         dt = float(np.median(np.diff(cols["time_s"])))
         if abs(dt - system.sample_period_s) > 1e-3 * system.sample_period_s:
             raise PredictError(
-                f"{f}: column 'time_s': sampled every {dt:g} s, the controller every "
-                f"{system.sample_period_s:g} s"
+                f"{spec.file}: column 'time_s': sampled every {dt:g} s, the controller every "
+                f"{system.sample_period_s:g} s (experiment {spec.name!r}; declare "
+                'units = { time_s = "ms" } for a time in ms)'
             )
-        inputs.append((str(e["name"]), cols))
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+        inputs.append((spec.name, system, cols))
     summary: dict[str, Any] = {"manifest": str(path), "experiments": {}}
-    for name, cols in inputs:
-        x0 = float(cols["position_m"][0]) if "position_m" in cols else float(cols["reference_m"][0])
-        tr = simulate(
-            system,
-            cols["reference_m"],
-            command_disturbance_v=cols.get("disturbance_v"),
-            force_disturbance_n=cols.get("disturbance_n"),
-            initial_position_m=x0,
-        )
-        pos = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
-        reading = tr.encoder_position_m
-        vel = np.gradient(pos, tr.time_s)
-        with (out / f"{name}.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["time_s", "reference_m", "position_m", "velocity_m_per_s", "command_v"])
-            for row in zip(
-                cols["time_s"], cols["reference_m"], reading, vel, tr.command, strict=True
-            ):
-                w.writerow([repr(float(v)) for v in row])
-        entry: dict[str, Any] = {"samples": len(reading), "file": str(out / f"{name}.csv")}
-        if "position_m" in cols:
-            m = cols["position_m"]
-            entry["position_relative_error"] = float(
-                np.linalg.norm(m - reading) / np.linalg.norm(m)
-            )
-        summary["experiments"][name] = entry
-    (out / "predict.json").write_text(json.dumps(summary, indent=1))
+    try:
+        with staged_output(out_dir, "predict") as folder:
+            for name, system, cols in inputs:
+                summary["experiments"][name] = _predict_one(
+                    system, cols, folder / f"{name}.csv", Path(out_dir) / f"{name}.csv"
+                )
+            write_json(summary, folder / "predict.json", indent=1)
+    except OutputError as exc:
+        raise PredictError(str(exc)) from exc
     return summary
+
+
+def _predict_one(
+    system: Any, cols: dict[str, FloatArray], file: Path, final: Path
+) -> dict[str, Any]:
+    """Simulate one experiment, write its CSV to ``file``; its summary entry."""
+    x0 = float(cols["position_m"][0]) if "position_m" in cols else float(cols["reference_m"][0])
+    tr = simulate(
+        system,
+        cols["reference_m"],
+        command_disturbance_v=cols.get("disturbance_v"),
+        force_disturbance_n=cols.get("disturbance_n"),
+        initial_position_m=x0,
+    )
+    pos = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
+    reading = tr.encoder_position_m
+    vel = np.gradient(pos, tr.time_s)
+    # The controller output in volts at the amplifier input (as the diagnosis converts it).
+    command_v = tr.command * tr.output_unit_v
+    with file.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(OUTPUT_COLUMNS)
+        for row in zip(cols["time_s"], cols["reference_m"], reading, vel, command_v, strict=True):
+            w.writerow([repr(float(v)) for v in row])
+    entry: dict[str, Any] = {"samples": len(reading), "file": str(final)}
+    if "position_m" in cols:
+        meas = cols["position_m"]
+        norm = float(np.linalg.norm(meas))
+        entry["position_relative_error"] = (
+            float(np.linalg.norm(meas - reading) / norm) if norm > 0.0 else None
+        )
+    return entry

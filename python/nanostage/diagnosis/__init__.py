@@ -39,6 +39,7 @@ from .manifest import (
     field_paths,
     get_path,
     load_manifest,
+    load_prediction_manifest,
     preset_names,
     preset_system,
     replace_paths,
@@ -64,7 +65,15 @@ from .segments import (
     segment_arrays,
     segment_summary,
 )
-from .traces import MIN_SAMPLES, TraceError, cut_window, read_trace, write_trace_csv
+from .traces import (
+    MIN_SAMPLES,
+    TraceError,
+    TraceLimits,
+    cut_window,
+    read_prediction_trace,
+    read_trace,
+    write_trace_csv,
+)
 
 __all__ = [
     "CONTROLLER_GAINS",
@@ -94,6 +103,7 @@ __all__ = [
     "Segmentation",
     "Spectrum",
     "TraceError",
+    "TraceLimits",
     "analyse_gap",
     "compare_features",
     "cut_window",
@@ -103,6 +113,7 @@ __all__ = [
     "get_path",
     "iso230_comparison",
     "load_manifest",
+    "load_prediction_manifest",
     "markdown_report",
     "move_features",
     "plot_gap_map",
@@ -110,6 +121,7 @@ __all__ = [
     "power_share_near",
     "preset_names",
     "preset_system",
+    "read_prediction_trace",
     "read_trace",
     "replace_paths",
     "residual",

@@ -12,6 +12,9 @@ Schema
 
     [model]
     preset = "seed"                 # required: a preset name (see PRESET_NAMES())
+    travel_m = 0.05                 # optional: the axis travel, m (default: the preset's,
+                                    #   PRESET_TRAVEL_M); position columns beyond it are
+                                    #   taken for millimetres
     file = "model.toml"             # optional: a TOML file of overrides, relative to the
                                     #   manifest, e.g.  [plant.table]  mass_kg = 0.8
     free = ["plant.dahl.coulomb_force_n", "plant.dahl.stiffness_n_per_m"]
@@ -38,16 +41,31 @@ Schema
 
     [[experiment]]                  # one or more
     name = "step_100um_1"           # required, unique
-    file = "traces/step_100um_1.csv"  # required, relative to the manifest (CSV, .npz, .mat)
+    file = "traces/step_100um_1.csv"  # required, relative to the manifest (CSV, .npz, .mat);
+                                    #   must resolve inside the manifest's folder
     role = "train"                  # optional: "train" | "validate"; all experiments or none.
                                     #   None: leave-one-experiment-out folds
     columns = { position_m = "qm" } # optional column map {standard name: name in the file}
+    units = "mm"                    # optional: unit of the length columns in the file, or
+                                    #   { position_m = "um", time_s = "ms" } per column
     window_s = [0.0, 12.0]          # optional time window [start, stop) in s
     controller = { kp = 12.0 }      # optional per-experiment controller: merged over the
                                     #   default (a different `kind` replaces it)
 
 Unknown keys anywhere are errors (with a "did you mean" hint), so typos do not pass
 silently.
+
+Files the manifest names (``model.file``, every ``experiment.file``) must resolve, after
+symbolic links, inside the manifest's folder, unless the caller names another root
+(``trace_root=``, CLI ``--trace-root``). The traces are read within size limits
+(:class:`~nanostage.diagnosis.traces.TraceLimits`, ``limits=``): per trace, and all the
+experiments together.
+
+``nanostage predict`` reads the same schema (:func:`load_prediction_manifest`) without the
+diagnosis keys (``model.free``, ``model.bounds``, ``[diagnosis]``, ``experiment.role``, an
+error there), with experiment names that become file names
+(:func:`nanostage.output.check_file_stems`) and the trace columns of
+:func:`~nanostage.diagnosis.traces.read_prediction_trace`.
 """
 
 from __future__ import annotations
@@ -58,7 +76,7 @@ import math
 import re
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Final, Literal
@@ -66,7 +84,20 @@ from typing import Any, Final, Literal
 from .. import presets
 from ..effect_names import EFFECT_NAMES
 from ..experiment import Experiment
-from .traces import ALL_COLUMNS, TraceError, cut_window, read_trace
+from ..output import OutputError, check_file_stems
+from .traces import (
+    ALL_COLUMNS,
+    LENGTH_UNITS,
+    MAX_TRAVEL_M,
+    POSITION_COLUMNS,
+    PREDICTION_COLUMNS,
+    TIME_UNITS,
+    TraceError,
+    TraceLimits,
+    cut_window,
+    escaped,
+    read_trace,
+)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -75,6 +106,7 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = [
     "CONTROLLER_GAINS",
+    "PRESET_TRAVEL_M",
     "ROLES",
     "ControllerSpec",
     "DiagnosisSpec",
@@ -83,9 +115,11 @@ __all__ = [
     "Manifest",
     "ManifestError",
     "ModelSpec",
+    "check_total_samples",
     "field_paths",
     "get_path",
     "load_manifest",
+    "load_prediction_manifest",
     "preset_names",
     "preset_system",
     "replace_paths",
@@ -103,10 +137,31 @@ _PRESET_CONTROLLER_KIND: Final[Mapping[str, str]] = MappingProxyType(
     {"seed": "fpga_pid", "emps": "cascade"}
 )
 
+#: Travel of each preset's axis, m: SEED.md's 50 mm for the seed axis; 0.5 m for the EMPS
+#: (the data set spans 0.25 m). A manifest may give its own (``model.travel_m``).
+PRESET_TRAVEL_M: Final[Mapping[str, float]] = MappingProxyType(
+    {"seed": 0.05, "emps": 0.5, "emps_naive": 0.5, "emps_asymmetric": 0.5}
+)
+
 _TOP_KEYS: Final = ("model", "controller", "diagnosis", "experiment")
-_MODEL_KEYS: Final = ("preset", "file", "free", "overrides", "bounds")
+_MODEL_KEYS: Final = ("preset", "file", "free", "overrides", "bounds", "travel_m")
 _DIAGNOSIS_KEYS: Final = ("candidates", "seed")
-_EXPERIMENT_KEYS: Final = ("name", "file", "role", "columns", "window_s", "controller")
+_EXPERIMENT_KEYS: Final = (
+    "name",
+    "file",
+    "role",
+    "columns",
+    "units",
+    "window_s",
+    "controller",
+)
+#: Keys only the diagnosis reads (an error in a prediction manifest), by table.
+_DIAGNOSE_ONLY: Final[Mapping[str, tuple[str, ...]]] = MappingProxyType(
+    {"": ("diagnosis",), "model": ("free", "bounds"), "experiment": ("role",)}
+)
+#: Largest ``model.travel_m`` accepted, m.
+_MAX_TRAVEL_SETTING_M: Final = 10.0
+Purpose = Literal["diagnose", "predict"]
 
 
 class ManifestError(ValueError):
@@ -291,6 +346,9 @@ class ModelSpec:
         ``(lower, upper)`` of every free parameter (defaults filled in).
     initial : mapping of str to float
         Value of every free parameter in the preset with the overrides applied.
+    travel_m : float
+        The axis travel, m (``model.travel_m`` or :data:`PRESET_TRAVEL_M`): the scale the
+        traces' length columns are checked against.
     """
 
     preset: str
@@ -299,6 +357,7 @@ class ModelSpec:
     free: tuple[str, ...]
     bounds: Mapping[str, tuple[float, float]]
     initial: Mapping[str, float]
+    travel_m: float = MAX_TRAVEL_M
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -313,6 +372,8 @@ class ExperimentSpec:
     controller: ControllerSpec
     #: Position of the entry in the manifest (0-based), for error messages.
     index: int = 0
+    #: Units of the file's columns (a length unit, or standard name → unit), or None: SI.
+    units: str | Mapping[str, str] | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -346,6 +407,10 @@ class Manifest:
     diagnosis : DiagnosisSpec
     experiment_specs : tuple of ExperimentSpec
         The ``[[experiment]]`` entries in manifest order.
+    limits : TraceLimits
+        Size limits of the traces (:meth:`experiments`).
+    purpose : {"diagnose", "predict"}
+        The command whose schema the manifest was checked against.
     """
 
     path: Path
@@ -353,6 +418,8 @@ class Manifest:
     controller: ControllerSpec
     diagnosis: DiagnosisSpec
     experiment_specs: tuple[ExperimentSpec, ...]
+    limits: TraceLimits = field(default_factory=TraceLimits)
+    purpose: Purpose = "diagnose"
 
     def system(self, experiment: ExperimentSpec | None = None) -> Any:
         """The preset with the model overrides and the controller gains applied.
@@ -369,21 +436,34 @@ class Manifest:
     def experiments(self) -> list[tuple[ExperimentSpec, Experiment]]:
         """Read and check every experiment's trace (each file once).
 
+        The traces are read in the units the experiments declare, checked against the
+        model's travel and within :attr:`limits`: each file, and the samples of all the
+        experiments together (counted as they are read, so at most one trace beyond
+        ``max_samples_total`` is ever held).
+
         Raises
         ------
         ManifestError
             Wrapping the :class:`~nanostage.diagnosis.traces.TraceError` (available as
-            ``__cause__``), with the experiment's key and name.
+            ``__cause__``), with the experiment's key and name; or naming the total limit.
         """
-        cache: dict[tuple[Path, tuple[tuple[str, str], ...]], Experiment] = {}
+        cache: dict[tuple[Path, str, str], Experiment] = {}
         out: list[tuple[ExperimentSpec, Experiment]] = []
+        total = 0
         for spec in self.experiment_specs:
-            cols = tuple(sorted((spec.columns or {}).items()))
+            key = (spec.file, repr(sorted((spec.columns or {}).items())), _units_key(spec.units))
             try:
-                whole = cache.get((spec.file, cols))
+                whole = cache.get(key)
                 if whole is None:
-                    whole = read_trace(spec.file, columns=spec.columns, name=spec.name)
-                    cache[(spec.file, cols)] = whole
+                    whole = read_trace(
+                        spec.file,
+                        columns=spec.columns,
+                        name=spec.name,
+                        units=spec.units,
+                        travel_m=self.model.travel_m,
+                        limits=self.limits,
+                    )
+                    cache[key] = whole
                 exp = whole if spec.window_s is None else cut_window(whole, spec.window_s)
             except TraceError as exc:
                 raise ManifestError(
@@ -391,6 +471,8 @@ class Manifest:
                     file=str(self.path),
                     key=f"experiment[{spec.index}]",
                 ) from exc
+            total += exp.n_samples
+            check_total_samples(total, self.limits, spec, self.path)
             out.append((spec, dataclasses.replace(exp, name=spec.name)))
         return out
 
@@ -426,6 +508,8 @@ class Manifest:
 # --------------------------------------------------------------------------------------------
 
 _LINE_RE = re.compile(r"line (\d+)")
+#: Largest manifest (or model overrides) file, bytes: a manifest is a few kB.
+MAX_MANIFEST_BYTES: Final[int] = 16 * 2**20
 
 
 def _load_toml(path: Path, display: str | None = None) -> dict[str, Any]:
@@ -435,6 +519,11 @@ def _load_toml(path: Path, display: str | None = None) -> dict[str, Any]:
             "no such file" if not path.exists() else "not a regular file", file=file
         )
     try:
+        size = path.stat().st_size
+        if size > MAX_MANIFEST_BYTES:
+            raise ManifestError(
+                f"{size} bytes is not a manifest (at most {MAX_MANIFEST_BYTES} bytes)", file=file
+            )
         with path.open("rb") as fh:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
@@ -443,14 +532,25 @@ def _load_toml(path: Path, display: str | None = None) -> dict[str, Any]:
             f"TOML syntax error: {exc}", file=file, line=int(m.group(1)) if m else None
         ) from None
     except UnicodeDecodeError as exc:
-        raise ManifestError(f"not UTF-8 text: {exc}", file=file) from None
+        line = bytes(exc.object[: exc.start]).count(b"\n") + 1
+        raise ManifestError(
+            f"not UTF-8 text: the byte at offset {exc.start} cannot be decoded; save the "
+            "file as UTF-8",
+            file=file,
+            line=line,
+        ) from None
+    except OSError as exc:
+        raise ManifestError(f"cannot read the file ({exc.strerror or exc})", file=file) from None
 
 
 class _Ctx:
-    """Error factory bound to a file."""
+    """Error factory bound to a file, and the rules of the command the manifest is for."""
 
-    def __init__(self, file: Path) -> None:
+    def __init__(self, file: Path, purpose: Purpose = "diagnose", root: Path | None = None) -> None:
         self.file = str(file)
+        self.purpose: Purpose = purpose
+        #: The folder files named in the manifest must resolve inside (None: no check).
+        self.root = root
 
     def err(self, key: str | None, message: str) -> ManifestError:
         return ManifestError(message, file=self.file, key=key)
@@ -460,14 +560,44 @@ class _Ctx:
             raise self.err(key, f"expected a table, got {_tname(value)}")
         return value
 
+    def allowed(self, keys: Sequence[str], kind: str) -> tuple[str, ...]:
+        """``keys`` of a table (``kind``: "", "model", "experiment") for this purpose."""
+        if self.purpose == "diagnose":
+            return tuple(keys)
+        return tuple(k for k in keys if k not in _DIAGNOSE_ONLY.get(kind, ()))
+
     def keys(self, table: Mapping[str, Any], allowed: Sequence[str], key: str) -> None:
+        kind = re.sub(r"\[\d+\]$", "", key)
         for k in table:
             if k not in allowed:
                 where = f"{key}.{k}" if key else k
+                if self.purpose == "predict" and k in _DIAGNOSE_ONLY.get(kind, ()):
+                    raise self.err(
+                        where,
+                        "a diagnosis key: nanostage predict does not use it; remove it "
+                        f"(valid keys: {', '.join(allowed)})",
+                    )
                 raise self.err(
                     where,
                     f"unknown key{_hint(k, allowed)}; valid keys: {', '.join(allowed)}",
                 )
+
+    def inside(self, key: str, rel: str, base_dir: Path, what: str) -> Path:
+        """The file ``rel`` (relative to ``base_dir``) resolved, checked to lie inside
+        :attr:`root` after symbolic links."""
+        try:
+            file = (base_dir / rel).resolve()
+        except (OSError, ValueError, RuntimeError) as exc:
+            raise self.err(key, f"{what} {escaped(rel)} is not a usable path ({exc})") from None
+        if self.root is not None and not file.is_relative_to(self.root):
+            where = "the manifest's folder" if self.root == base_dir else "the trace root"
+            raise self.err(
+                key,
+                f"{what} {escaped(rel)} resolves to {str(file)!r}, outside {where} "
+                f"{str(self.root)!r}; move it inside, or allow another folder with "
+                "trace_root= (CLI --trace-root DIR)",
+            )
+        return file
 
     def string(self, value: Any, key: str) -> str:
         if not isinstance(value, str) or not value:
@@ -566,7 +696,7 @@ def _parse_controller(
 
 def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
     table = ctx.table(raw, "model")
-    ctx.keys(table, _MODEL_KEYS, "model")
+    ctx.keys(table, ctx.allowed(_MODEL_KEYS, "model"), "model")
     if "preset" not in table:
         raise ctx.err("model.preset", f"missing; give a preset name ({', '.join(preset_names())})")
     preset = ctx.string(table["preset"], "model.preset")
@@ -581,7 +711,9 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
     overrides: dict[str, Any] = {}
     model_file: Path | None = None
     if "file" in table:
-        model_file = (base_dir / ctx.string(table["file"], "model.file")).resolve()
+        model_file = ctx.inside(
+            "model.file", ctx.string(table["file"], "model.file"), base_dir, "model file"
+        )
         if not model_file.is_file():
             raise ctx.err("model.file", f"model overrides file {str(model_file)!r} not found")
         fctx = _Ctx(model_file)
@@ -654,6 +786,15 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
             )
         a, b = v / 3.0, v * 3.0
         bounds[path] = (min(a, b), max(a, b))
+    travel = PRESET_TRAVEL_M.get(preset, MAX_TRAVEL_M)
+    if "travel_m" in table:
+        travel = ctx.number(table["travel_m"], "model.travel_m")
+        if not 0.0 < travel <= _MAX_TRAVEL_SETTING_M:
+            raise ctx.err(
+                "model.travel_m",
+                f"{travel:g} m is invalid: expected the axis travel in metres, in "
+                f"(0, {_MAX_TRAVEL_SETTING_M:g}] (e.g. 0.05 for 50 mm)",
+            )
     spec = ModelSpec(
         preset=preset,
         file=model_file,
@@ -661,6 +802,7 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
         free=tuple(free),
         bounds=MappingProxyType({p: bounds[p] for p in free}),
         initial=MappingProxyType(initial),
+        travel_m=travel,
     )
     return spec, system
 
@@ -709,13 +851,13 @@ def _parse_experiment(
 ) -> ExperimentSpec:
     key = f"experiment[{i}]"
     table = ctx.table(raw, key)
-    ctx.keys(table, _EXPERIMENT_KEYS, key)
+    ctx.keys(table, ctx.allowed(_EXPERIMENT_KEYS, "experiment"), key)
     for req in ("name", "file"):
         if req not in table:
             raise ctx.err(f"{key}.{req}", "missing (every [[experiment]] needs name and file)")
     name = ctx.string(table["name"], f"{key}.name")
     rel = ctx.string(table["file"], f"{key}.file")
-    file = (base_dir / rel).resolve()
+    file = ctx.inside(f"{key}.file", rel, base_dir, f"experiment {name!r}: trace file")
     if not file.is_file():
         raise ctx.err(
             f"{key}.file",
@@ -735,20 +877,22 @@ def _parse_experiment(
                 f"experiment {name!r}: unknown role {r!r}{_hint(r, ROLES)}; valid roles: "
                 f"{', '.join(ROLES)}",
             )
+    valid = ALL_COLUMNS if ctx.purpose == "diagnose" else PREDICTION_COLUMNS
     columns: dict[str, str] | None = None
     if "columns" in table:
         cmap = ctx.table(table["columns"], f"{key}.columns")
         columns = {}
         for std, fname in cmap.items():
             ckey = f"{key}.columns.{std}"
-            if std not in ALL_COLUMNS:
+            if std not in valid:
                 raise ctx.err(
                     ckey,
                     f"experiment {name!r}: unknown standard column {std!r}"
-                    f"{_hint(std, ALL_COLUMNS)}; valid: {', '.join(ALL_COLUMNS)} (the map is "
+                    f"{_hint(std, valid)}; valid: {', '.join(valid)} (the map is "
                     "{standard name = name in the file})",
                 )
             columns[std] = ctx.string(fname, ckey)
+    units = _parse_units(ctx, table, f"{key}.units", name, valid)
     window: tuple[float, float] | None = None
     if "window_s" in table:
         w = table["window_s"]
@@ -774,22 +918,96 @@ def _parse_experiment(
         window_s=window,
         controller=ctrl,
         index=i,
+        units=units,
     )
 
 
-def load_manifest(path: str | Path) -> Manifest:
+def _parse_units(
+    ctx: _Ctx, table: Mapping[str, Any], key: str, name: str, valid: Sequence[str]
+) -> str | Mapping[str, str] | None:
+    """An experiment's ``units``: a length unit for every length column, or a table of
+    standard column → unit (lengths and ``time_s``)."""
+    if "units" not in table:
+        return None
+    raw = table["units"]
+    lengths = [c for c in POSITION_COLUMNS if c in valid]
+    if isinstance(raw, str):
+        if raw not in LENGTH_UNITS:
+            raise ctx.err(
+                key,
+                f"experiment {name!r}: unknown length unit {raw!r}{_hint(raw, list(LENGTH_UNITS))}"
+                f"; valid: {', '.join(LENGTH_UNITS)} (for {', '.join(lengths)}; or a table "
+                'such as { position_m = "mm", time_s = "ms" })',
+            )
+        return raw
+    if not isinstance(raw, dict):
+        raise ctx.err(key, f"expected a unit or a table of column units, got {_tname(raw)}")
+    out: dict[str, str] = {}
+    cols = ["time_s", *lengths]
+    for std, unit in raw.items():
+        ukey = f"{key}.{std}"
+        if std not in cols:
+            raise ctx.err(
+                ukey,
+                f"experiment {name!r}: no unit can be declared for {std!r}{_hint(std, cols)}; "
+                f"units apply to {', '.join(cols)} (other columns are in the unit their name "
+                "says)",
+            )
+        options = TIME_UNITS if std == "time_s" else LENGTH_UNITS
+        u = ctx.string(unit, ukey)
+        if u not in options:
+            raise ctx.err(
+                ukey,
+                f"experiment {name!r}: unknown unit {u!r} for {std}{_hint(u, list(options))}; "
+                f"valid: {', '.join(options)}",
+            )
+        out[std] = u
+    return MappingProxyType(out)
+
+
+def _units_key(units: str | Mapping[str, str] | None) -> str:
+    """A hashable form of an experiment's units (for reading each file once)."""
+    return repr(units if units is None or isinstance(units, str) else sorted(units.items()))
+
+
+def check_total_samples(total: int, limits: TraceLimits, spec: ExperimentSpec, path: Path) -> None:
+    """Raise :class:`ManifestError` if ``total`` samples (the experiments read so far, up to
+    and including ``spec``) exceed ``limits.max_samples_total``."""
+    cap = limits.max_samples_total
+    if total > cap:
+        raise ManifestError(
+            f"experiment {spec.name!r} brings the experiments to {total} samples, above the "
+            f"limit of {cap} samples per manifest; use fewer or shorter experiments "
+            f"(window_s), or {TraceLimits.how_to_raise('max_samples_total')}",
+            file=str(path),
+            key=f"experiment[{spec.index}]",
+        )
+
+
+def load_manifest(
+    path: str | Path,
+    *,
+    trace_root: str | Path | None = None,
+    limits: TraceLimits | None = None,
+) -> Manifest:
     """Load and validate a diagnosis manifest (schema in the module docstring).
 
     Checks everything that can be checked without reading the traces: keys and types,
     the preset, overrides and free-parameter paths (against the preset's dataclass tree),
     bounds, controller kinds and gains, effect names, roles, unique experiment names,
-    that every trace file exists, and windows. Call :meth:`Manifest.experiments` to read
+    column maps and units, that every file it names lies inside the manifest's folder (or
+    ``trace_root``) and exists, and windows. Call :meth:`Manifest.experiments` to read
     and check the traces themselves (windows against the trace's time span included).
 
     Parameters
     ----------
     path : str or Path
         The manifest (TOML).
+    trace_root : str or Path, optional
+        The folder the files named in the manifest must resolve inside (after symbolic
+        links); default: the manifest's folder. Give it to read traces kept elsewhere.
+    limits : TraceLimits, optional
+        Size limits of the traces (default ``TraceLimits()``).
 
     Returns
     -------
@@ -800,15 +1018,63 @@ def load_manifest(path: str | Path) -> Manifest:
     ManifestError
         Naming the manifest file and the key (and the line of a TOML syntax error).
     """
+    return _load(path, "diagnose", trace_root, limits)
+
+
+def load_prediction_manifest(
+    path: str | Path,
+    *,
+    trace_root: str | Path | None = None,
+    limits: TraceLimits | None = None,
+) -> Manifest:
+    """Load and validate a ``nanostage predict`` manifest: the schema of
+    :func:`load_manifest` without the diagnosis keys (``model.free``, ``model.bounds``,
+    ``[diagnosis]``, ``experiment.role``: errors), the prediction trace columns
+    (:data:`~nanostage.diagnosis.traces.PREDICTION_COLUMNS`) in column maps, and experiment
+    names that are safe, unique file names (:func:`nanostage.output.check_file_stems`).
+    Parameters and errors as in :func:`load_manifest`.
+    """
+    return _load(path, "predict", trace_root, limits)
+
+
+def _load(
+    path: str | Path,
+    purpose: Purpose,
+    trace_root: str | Path | None,
+    limits: TraceLimits | None,
+) -> Manifest:
     p = Path(path).resolve()
-    ctx = _Ctx(Path(path))
+    if limits is None:
+        limits = TraceLimits()
+    elif not isinstance(limits, TraceLimits):
+        raise ManifestError(
+            f"limits = {limits!r} is invalid: expected a TraceLimits", file=str(path)
+        )
+    if trace_root is None:
+        root = p.parent
+    else:
+        root = Path(trace_root).expanduser().resolve()
+        if not root.is_dir():
+            raise ManifestError(
+                f"the trace root {str(trace_root)!r} (trace_root=, CLI --trace-root) is not "
+                "a folder",
+                file=str(path),
+            )
+    ctx = _Ctx(Path(path), purpose, root)
     data = _load_toml(p, display=str(path))
+    top = ctx.allowed(_TOP_KEYS, "")
     for k in data:
-        if k not in _TOP_KEYS:
-            hint = _hint(k, _TOP_KEYS)
+        if k not in top:
+            if purpose == "predict" and k in _DIAGNOSE_ONLY[""]:
+                raise ctx.err(
+                    k,
+                    "a diagnosis table: nanostage predict does not use it; remove it "
+                    f"(valid: {', '.join(top)})",
+                )
+            hint = _hint(k, top)
             if k == "experiments":
                 hint = " (did you mean [[experiment]]?)"
-            raise ctx.err(k, f"unknown table{hint}; valid: {', '.join(_TOP_KEYS)}")
+            raise ctx.err(k, f"unknown table{hint}; valid: {', '.join(top)}")
     if "model" not in data:
         raise ctx.err("model", 'missing [model] table (at least: preset = "seed")')
     model, system = _parse_model(ctx, data["model"], p.parent)
@@ -824,7 +1090,8 @@ def load_manifest(path: str | Path) -> Manifest:
 
     raw_exps = data.get("experiment")
     if raw_exps is None:
-        raise ctx.err("experiment", "no [[experiment]] entries; the diagnosis needs at least one")
+        what = "the diagnosis" if purpose == "diagnose" else "the prediction"
+        raise ctx.err("experiment", f"no [[experiment]] entries; {what} needs at least one")
     if isinstance(raw_exps, dict):
         raise ctx.err("experiment", "write experiments as [[experiment]] (an array of tables)")
     if not isinstance(raw_exps, list) or not raw_exps:
@@ -833,6 +1100,11 @@ def load_manifest(path: str | Path) -> Manifest:
     seen: dict[str, int] = {}
     for i, raw in enumerate(raw_exps):
         spec = _parse_experiment(ctx, raw, i, p.parent, controller, default_kind, system)
+        if purpose == "predict":
+            try:  # each name becomes the file name of its prediction
+                check_file_stems([*seen, spec.name], "name")
+            except OutputError as exc:
+                raise ctx.err(f"experiment[{i}].name", str(exc)) from None
         if spec.name in seen:
             raise ctx.err(
                 f"experiment[{i}].name",
@@ -856,4 +1128,6 @@ def load_manifest(path: str | Path) -> Manifest:
         controller=controller,
         diagnosis=diagnosis,
         experiment_specs=tuple(specs),
+        limits=limits,
+        purpose=purpose,
     )
