@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -229,8 +230,10 @@ def write_manifest(
     candidates: str | Sequence[str] = "all",
 ) -> Path:
     """A diagnosis manifest over DATA_EMPS cut into the four windows of :data:`WINDOWS_S`:
-    windows 1 and 3 train, 2 and 4 validate."""
+    windows 1 and 3 train, 2 and 4 validate. A manifest's trace files must lie inside its
+    folder, so the data file is copied there unless it already is."""
     p = Path(path)
+    data = p.parent / Path(mat_path).name
     cand = (
         f'"{candidates}"'
         if isinstance(candidates, str)
@@ -252,12 +255,14 @@ def write_manifest(
         lines += [
             "[[experiment]]",
             f'name = "window{i + 1}"',
-            f'file = "{Path(mat_path).resolve()}"',
+            f'file = "{data.name}"',
             f'role = "{"train" if i % 2 == 0 else "validate"}"',
             'columns = { time_s = "t", reference_m = "qg", position_m = "qm", command_v = "vir" }',
             f"window_s = [{a}, {b}]",
             "",
         ]
     p.parent.mkdir(parents=True, exist_ok=True)
+    if not (data.exists() and data.samefile(mat_path)):
+        shutil.copyfile(mat_path, data)
     p.write_text("\n".join(lines))
     return p
