@@ -774,7 +774,7 @@ def test_cli_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     assert str(csv_path) in err and "line 4" in err and "column 'direction'" in err
     assert not (tmp_path / "o").exists()
     missing = _parser().parse_args(["iso230", str(tmp_path / "nope.csv")])
-    assert iso230_2.run_cli(missing) == 1
+    assert iso230_2.run_cli(missing) == 2
     bad_k = _parser().parse_args(
         ["iso230", str(write_lines(tmp_path / "g.csv", GOOD_CSV_LINES)), "--coverage-factor", "0"]
     )

@@ -1,72 +1,182 @@
-"""The ``nanostage`` command line."""
+"""The ``nanostage`` command line.
+
+Conventions of every command:
+
+* exit code 0 on success; 2 on any input, option or output-folder error, with one line on
+  stderr naming the file or option, the value and what is valid (no traceback;
+  ``nanostage --debug COMMAND ...`` shows it); 1 on an unexpected internal error (one line,
+  ``--debug`` for the traceback); 130 on Ctrl-C and 143 on SIGTERM (one line, after the
+  running work has stopped and the clean-up has run);
+* ``--out DIR`` is checked before any work and written whole or not at all
+  (:mod:`nanostage.output`): it must be new, empty, or a folder an earlier nanostage run
+  wrote, which a successful run replaces; an interrupted or failed run leaves it as it was.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+import traceback
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+from typing import Final, NoReturn, cast
 
 from . import iso230_2
+from ._core import SimulationError
+from .output import check_output_dir, staged_output
+
+#: Exit codes.
+EXIT_OK: Final = 0
+EXIT_INTERNAL: Final = 1
+EXIT_ERROR: Final = 2
+EXIT_INTERRUPTED: Final = 130
+EXIT_TERMINATED: Final = 143
+
+#: Errors that are the user's input (the message says what is wrong): one line, exit 2.
+#: ``ValueError`` covers ``ConfigError``, ``ManifestError``, ``OutputError``, the readers'
+#: errors and ``UnicodeDecodeError``.
+_USER_ERRORS: Final = (ValueError, OSError, SimulationError)
+#: Longest error line printed [characters].
+_MAX_MESSAGE: Final = 1000
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so that the same clean-up runs
+    (campaigns stopped, executor futures cancelled, staged output removed)."""
+
+
+def _on_sigterm(signum: int, frame: FrameType | None) -> None:
+    raise Terminated
+
+
+@contextmanager
+def _signals() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` while a command runs (main thread only; a SIGTERM
+    the caller ignores or handles itself is left alone). The previous handler is restored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    install = previous in (signal.SIG_DFL, None)
+    if install:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        if install:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _one_line(text: str) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= _MAX_MESSAGE else line[: _MAX_MESSAGE - 1] + "…"
+
+
+def _describe(exc: BaseException) -> str:
+    """One line for an error: the exception's message, with the file of an ``OSError``."""
+    if isinstance(exc, UnicodeDecodeError):
+        return (
+            f"input is not {exc.encoding} text: byte 0x{exc.object[exc.start]:02x} at offset "
+            f"{exc.start} cannot be decoded ({exc.reason})"
+        )
+    if isinstance(exc, OSError) and exc.filename is not None:
+        what = exc.strerror or type(exc).__name__
+        other = f" -> {exc.filename2}" if exc.filename2 is not None else ""
+        return f"{exc.filename}{other}: {what}"
+    text = str(exc)
+    return text if text else type(exc).__name__
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors on one line: ``nanostage tune: error: argument --trials: ...``."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {_one_line(message)} (see --help)\n")
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: expected an integer") from None
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: expected a number") from None
+
+
+def _wrote(out: str | Path, names: Sequence[str]) -> str:
+    return "wrote " + ", ".join(str(Path(out) / n) for n in names)
+
+
+# --------------------------------------------------------------------------------------------
+# Commands
+# --------------------------------------------------------------------------------------------
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from .paper_campaigns import CampaignSettings, write_paper_campaigns
-    from .reproduce import reproduce
+    from .paper_campaigns import CampaignSettings, check_threads, write_paper_campaigns_into
+    from .reproduce import reproduce_into
 
+    # Every argument and the output folder are checked before any work.
     campaigns = None
     if args.campaigns:
-        # Checked before any work.
-        try:
-            campaigns = CampaignSettings(
-                n_trials=args.campaign_trials,
-                seed=args.campaign_seed,
-                backlash_width_m=args.campaign_backlash_m,
-            )
-        except ValueError as exc:
-            print(f"nanostage reproduce: {exc}", file=sys.stderr)
-            return 2
-    summary = reproduce(args.out, plot=not args.no_plot)
-    print(summary["table_markdown"])
-    slew = summary["slew_at_voltage_limit"]
-    assert isinstance(slew, dict)
-    print(
-        f"\nPredicted slew speed at the {slew['voltage_v']:g} V limit: "
-        f"{slew['predicted_velocity_m_per_s'] * 1e3:.2f} mm/s (force balance; see summary.json)"
-    )
-    print(
-        f"compute time: {summary['compute_time_s']:.3f} s; wrote {args.out}/summary.json"
-        + ("" if args.no_plot else f" and {args.out}/steps.png")
-    )
-    if campaigns is not None:
-        res = write_paper_campaigns(
-            args.out,
-            campaigns,
-            threads=args.threads,
-            log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+        campaigns = CampaignSettings(
+            n_trials=args.campaign_trials,
+            seed=args.campaign_seed,
+            backlash_width_m=args.campaign_backlash_m,
         )
-        print()
-        print(res["markdown"])
-        print(f"wrote {args.out}/campaigns.json and {args.out}/campaigns.md")
-    return 0
+        check_threads(args.threads)
+    check_output_dir(args.out)
+    names = ["summary.json"] if args.no_plot else ["summary.json", "steps.png"]
+    with staged_output(args.out, "reproduce") as folder:
+        summary = reproduce_into(folder, plot=not args.no_plot)
+        print(summary["table_markdown"])
+        slew = summary["slew_at_voltage_limit"]
+        assert isinstance(slew, dict)
+        print(
+            f"\nPredicted slew speed at the {slew['voltage_v']:g} V limit: "
+            f"{slew['predicted_velocity_m_per_s'] * 1e3:.2f} mm/s (force balance; see "
+            "summary.json)"
+        )
+        print(f"compute time: {summary['compute_time_s']:.3f} s")
+        if campaigns is not None:
+            res = write_paper_campaigns_into(
+                folder,
+                campaigns,
+                threads=args.threads,
+                log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+            )
+            print()
+            print(res["markdown"])
+            names += ["campaigns.json", "campaigns.md"]
+    print(_wrote(args.out, names))
+    return EXIT_OK
 
 
 def _diagnose(args: argparse.Namespace) -> int:
-    from .diagnosis.manifest import ManifestError
     from .diagnosis.run import diagnose
 
-    try:
-        d = diagnose(args.manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
-    except (ManifestError, ValueError) as exc:
-        print(f"nanostage diagnose: {exc}", file=sys.stderr)
-        return 2
+    d = diagnose(args.manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
     r = d.report
     before, after = r["gap_before"]["total_rms_m"], r["gap_after"]["total_rms_m"]
     print(
         f"validation gap {before * 1e9:.0f} nm → {after * 1e9:.0f} nm with "
         f"{', '.join(r['selected']) or 'no effect'} (noise floor "
-        f"{r['noise_floor_rms_m'] * 1e9:.0f} nm); report in {args.out}/report.md"
+        f"{r['noise_floor_rms_m'] * 1e9:.0f} nm); report in {Path(args.out) / 'report.md'}"
     )
-    return 0
+    return EXIT_OK
+
+
+def _pct(v: float | None, spec: str) -> str:
+    return "—" if v is None or v != v else format(v, spec)
 
 
 def _benchmark(args: argparse.Namespace) -> int:
@@ -82,32 +192,30 @@ def _benchmark(args: argparse.Namespace) -> int:
     detect = (
         ""
         if s["detectable_cases"] is None
-        else f" (top-1 {s['top1_detectable']:.0%} of the {s['detectable_cases']} cases the "
-        "truth-started check finds detectable)"
+        else f" (top-1 {_pct(s['top1_detectable'], '.0%')} of the {s['detectable_cases']} "
+        "cases the truth-started check finds detectable)"
     )
     print(
-        f"top-1 {s['top1']:.0%}{detect}, false alarms {s['false_alarm_rate']:.0%}, median "
-        f"shrink {s['median_shrink']:.1%}"
+        f"top-1 {_pct(s['top1'], '.0%')}{detect}, false alarms "
+        f"{_pct(s['false_alarm_rate'], '.0%')}, median shrink "
+        f"{_pct(s['median_shrink'], '.1%')}"
         + (
             ""
             if s["median_crossfit_shrink"] is None
-            else f", cross-fitted {s['median_crossfit_shrink']:.1%}"
+            else f", cross-fitted {_pct(s['median_crossfit_shrink'], '.1%')}"
         )
-        + f" (the truth's own model: {s['median_oracle_shrink']:.1%}), median "
+        + f" (the truth's own model: {_pct(s['median_oracle_shrink'], '.1%')}), median "
         f"{s['median_seconds_per_case']:.0f} s per "
-        f"case; wrote {args.out}/benchmark.md"
+        f"case; wrote {Path(args.out) / 'benchmark.md'}"
     )
-    return 0
+    return EXIT_OK
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from .predict import PredictError, predict
+    from .predict import predict
 
-    try:
-        s = predict(args.manifest, args.out)
-    except PredictError as exc:
-        print(f"nanostage predict: {exc}", file=sys.stderr)
-        return 2
+    check_output_dir(args.out)
+    s = predict(args.manifest, args.out)
     for name, e in s["experiments"].items():
         extra = (
             f", position error {e['position_relative_error']:.3%} against the measurement"
@@ -115,7 +223,7 @@ def _predict(args: argparse.Namespace) -> int:
             else ""
         )
         print(f"{name}: {e['samples']} samples → {e['file']}{extra}")
-    return 0
+    return EXIT_OK
 
 
 def _emps(args: argparse.Namespace) -> int:
@@ -131,55 +239,80 @@ def _emps(args: argparse.Namespace) -> int:
     print("relative error ‖measured − simulated‖/‖measured‖  position  velocity  force")
     for label, y in rows:
         print(f"{label:44s} {y['position']:8.4%} {y['velocity']:8.3%} {y['force']:7.2%}")
-    print(f"wrote {args.out}/emps.json")
-    return 0
+    print(_wrote(args.out, ["emps.json"]))
+    return EXIT_OK
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from ._core import ConfigError
-    from .tune import Objective, markdown, tune_table1, write_tune_report
+    from . import presets
+    from .campaign import MAX_TRIALS, _int_arg
+    from .paper_campaigns import check_threads
+    from .tune import (
+        Objective,
+        markdown,
+        tune_table1,
+        tuning_cycle,
+        with_friction_spread,
+        write_tune_report,
+    )
 
-    try:
-        overshoot = None if args.overshoot_max_um is None else args.overshoot_max_um * 1e-6
-        if args.objective == "mix":
-            obj = Objective.mix(
-                seconds_per_micrometre=args.seconds_per_um,
-                overshoot_max_m=overshoot,
-                band_counts=args.band_counts,
-            )
-        elif args.objective == "settling":
-            obj = Objective.settling(overshoot_max_m=overshoot, band_counts=args.band_counts)
-        elif args.objective == "accuracy":
-            obj = Objective.accuracy()
-        else:
-            obj = Objective.repeatability()
-        steps = [s * 1e-6 for s in (args.step_um or [100.0, 500.0, 1000.0, 10000.0])]
-        report = tune_table1(
-            steps,
-            objective=obj,
-            level_spread=args.spread,
-            n_trials=args.trials,
-            eval_trials=args.eval_trials,
-            seed=args.seed,
-            popsize=args.popsize,
-            maxiter=args.maxiter,
-            threads=args.threads,
-            progress=not args.quiet,
-            log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+    # Every argument and the output folder are checked before any work.
+    overshoot = None if args.overshoot_max_um is None else args.overshoot_max_um * 1e-6
+    if args.objective == "mix":
+        obj = Objective.mix(
+            seconds_per_micrometre=args.seconds_per_um,
+            overshoot_max_m=overshoot,
+            band_counts=args.band_counts,
         )
-    except (ConfigError, TypeError) as exc:
-        print(f"nanostage tune: {exc}", file=sys.stderr)
-        return 2
+    elif args.objective == "settling":
+        obj = Objective.settling(overshoot_max_m=overshoot, band_counts=args.band_counts)
+    elif args.objective == "accuracy":
+        obj = Objective.accuracy()
+    else:
+        obj = Objective.repeatability()
+    steps = [s * 1e-6 for s in (args.step_um or [100.0, 500.0, 1000.0, 10000.0])]
+    for step in steps:
+        with_friction_spread(presets.seed(step), args.spread)
+        tuning_cycle(step)
+    if args.eval_trials is not None:
+        _int_arg("eval_trials", args.eval_trials, 1, MAX_TRIALS)
+    check_threads(args.threads)
+    check_output_dir(args.out)
+    report = tune_table1(
+        steps,
+        objective=obj,
+        level_spread=args.spread,
+        n_trials=args.trials,
+        eval_trials=args.eval_trials,
+        seed=args.seed,
+        popsize=args.popsize,
+        maxiter=args.maxiter,
+        threads=args.threads,
+        progress=not args.quiet,
+        log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+    )
     files = write_tune_report(args.out, report, plot=not args.no_plot)
     print(markdown(report))
     print("wrote " + ", ".join(str(f) for f in files.values()))
-    return 0
+    return EXIT_OK
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``nanostage`` command."""
-    parser = argparse.ArgumentParser(prog="nanostage", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+# --------------------------------------------------------------------------------------------
+# The parser and the entry point
+# --------------------------------------------------------------------------------------------
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="nanostage", description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help="show the traceback of an error (also accepted after the command)",
+    )
+    sub = cast(
+        "argparse._SubParsersAction[argparse.ArgumentParser]",
+        parser.add_subparsers(dest="command", required=True),
+    )
     rep = sub.add_parser("reproduce", help="simulate the paper's four step experiments")
     rep.add_argument("--out", default="out", help="output directory (default: out)")
     rep.add_argument("--no-plot", action="store_true", help="skip steps.png")
@@ -191,25 +324,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     rep.add_argument(
         "--campaign-trials",
-        type=int,
+        type=_integer,
         default=32,
         help="trials per campaign with --campaigns (default 32)",
     )
     rep.add_argument(
-        "--campaign-seed", type=int, default=0, help="campaign seed with --campaigns (default 0)"
+        "--campaign-seed",
+        type=_integer,
+        default=0,
+        help="campaign seed with --campaigns (default 0)",
     )
     rep.add_argument(
         "--campaign-backlash-m",
-        type=float,
+        type=_number,
         default=0.0,
         help="gearhead backlash width in the campaigns' model [m] (default 0: the paper's "
         "model; e.g. 5e-6)",
     )
     rep.add_argument(
-        "--threads", type=int, default=None, help="threads of the campaigns (default: all cores)"
+        "--threads",
+        type=_integer,
+        default=None,
+        help="threads of the campaigns (default: all cores)",
     )
     rep.add_argument("--quiet", action="store_true", help="no campaign progress on stderr")
-    rep.set_defaults(func=_reproduce)
+    rep.set_defaults(
+        func=_reproduce,
+        options={
+            "CampaignSettings.n_trials": "--campaign-trials",
+            "CampaignSettings.seed": "--campaign-seed",
+            "CampaignSettings.backlash_width_m": "--campaign-backlash-m",
+            "threads": "--threads",
+        },
+    )
     iso230_2.add_cli(sub)
     dg = sub.add_parser(
         "diagnose", help="locate and explain the gap between a model and measured experiments"
@@ -223,22 +370,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         "diagnose-benchmark", help="blind check of the diagnosis on synthetic hidden effects"
     )
     bm.add_argument("--out", default="diagnose-benchmark", help="output directory")
-    bm.add_argument("--cases", type=int, default=16, help="number of cases (default 16)")
-    bm.add_argument("--seed", type=int, default=1, help="seed of the case draws (default 1)")
+    bm.add_argument("--cases", type=_integer, default=16, help="number of cases (default 16)")
+    bm.add_argument("--seed", type=_integer, default=1, help="seed of the case draws (default 1)")
     bm.add_argument("--quiet", action="store_true", help="no per-case lines")
     bm.add_argument(
         "--no-truth-check",
         action="store_true",
         help="skip the truth-started check of each case (is the hidden effect detectable?)",
     )
-    bm.set_defaults(func=_benchmark)
+    bm.set_defaults(func=_benchmark, options={"cases": "--cases", "seed": "--seed"})
     pr = sub.add_parser("predict", help="simulate an identified model for given inputs")
     pr.add_argument("manifest", help="TOML manifest (see nanostage.predict)")
     pr.add_argument("--out", default="prediction", help="output directory")
     pr.set_defaults(func=_predict)
     em = sub.add_parser("emps", help="the EMPS real-data study (yardstick, identification)")
     em.add_argument("--out", default="emps", help="output directory")
-    em.add_argument("--mat", default=None, help="DATA_EMPS.mat (default: ../shared)")
+    em.add_argument(
+        "--mat",
+        default=None,
+        help="DATA_EMPS.mat (default: $NANOSTAGE_EMPS_MAT, or ../shared/data/emps beside a "
+        "source checkout)",
+    )
     em.set_defaults(func=_emps)
     tu = sub.add_parser(
         "tune",
@@ -246,7 +398,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     tu.add_argument(
         "--step-um",
-        type=float,
+        type=_number,
         action="append",
         help="step size in µm (repeat for several; default: Table 1's 100, 500, 1000, 10000)",
     )
@@ -258,29 +410,94 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     tu.add_argument(
         "--seconds-per-um",
-        type=float,
+        type=_number,
         default=0.1,
         help="mix: seconds of settling time that weigh as much as 1 µm of A↑ (default 0.1)",
     )
-    tu.add_argument("--overshoot-max-um", type=float, default=None, help="overshoot bound, µm")
-    tu.add_argument("--band-counts", type=int, default=1, help="settling band, ±counts (1)")
+    tu.add_argument("--overshoot-max-um", type=_number, default=None, help="overshoot bound, µm")
+    tu.add_argument("--band-counts", type=_integer, default=1, help="settling band, ±counts (1)")
     tu.add_argument(
-        "--spread", type=float, default=0.2, help="per-trial friction level spread (0.2)"
+        "--spread", type=_number, default=0.2, help="per-trial friction level spread (0.2)"
     )
-    tu.add_argument("--trials", type=int, default=200, help="trials per candidate (200)")
+    tu.add_argument("--trials", type=_integer, default=200, help="trials per candidate (200)")
     tu.add_argument(
-        "--eval-trials", type=int, default=None, help="held-out trials of the comparison"
+        "--eval-trials", type=_integer, default=None, help="held-out trials of the comparison"
     )
-    tu.add_argument("--popsize", type=int, default=5, help="population multiplier (5)")
-    tu.add_argument("--maxiter", type=int, default=10, help="generations (10)")
-    tu.add_argument("--seed", type=int, default=0, help="seed of the search (0)")
-    tu.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
+    tu.add_argument("--popsize", type=_integer, default=5, help="population multiplier (5)")
+    tu.add_argument("--maxiter", type=_integer, default=10, help="generations (10)")
+    tu.add_argument("--seed", type=_integer, default=0, help="seed of the search (0)")
+    tu.add_argument("--threads", type=_integer, default=None, help="threads (default: all cores)")
     tu.add_argument("--out", default="tune", help="output directory (default: tune)")
     tu.add_argument("--no-plot", action="store_true", help="skip pareto.png")
     tu.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    tu.set_defaults(func=_tune)
-    args = parser.parse_args(argv)
-    return int(args.func(args))
+    tu.set_defaults(
+        func=_tune,
+        options={
+            "step_m": "--step-um",
+            "seconds_per_micrometre": "--seconds-per-um",
+            "overshoot_max_m": "--overshoot-max-um",
+            "band_counts": "--band-counts",
+            "level_spread": "--spread",
+            "n_trials": "--trials",
+            "eval_trials": "--eval-trials",
+            "popsize": "--popsize",
+            "maxiter": "--maxiter",
+            "seed": "--seed",
+            "threads": "--threads",
+        },
+    )
+    for p in sub.choices.values():
+        p.add_argument(
+            "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
+    return parser
+
+
+def _with_option(message: str, options: dict[str, str]) -> str:
+    """Prefix the command-line option to an API message that starts with its parameter."""
+    for name, option in options.items():
+        if message.startswith((f"{name} ", f"{name}=")):
+            return f"{option}: {message}"
+    return message
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``nanostage`` command; returns the exit code (see the module
+    docstring)."""
+    parser = _build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage error already printed on one line
+        return exc.code if isinstance(exc.code, int) else EXIT_ERROR
+    command = f"{parser.prog} {args.command}"
+    debug = bool(getattr(args, "debug", False))
+    options: dict[str, str] = getattr(args, "options", {})
+
+    def say(message: str, exc: BaseException | None = None) -> None:
+        if debug and exc is not None:
+            traceback.print_exception(exc)
+        print(f"{command}: {_one_line(message)}", file=sys.stderr)
+        sys.stderr.flush()
+
+    try:
+        with _signals():
+            return int(args.func(args))
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, Terminated):
+            say("terminated (SIGTERM)", exc)
+            return EXIT_TERMINATED
+        say("interrupted", exc)
+        return EXIT_INTERRUPTED
+    except _USER_ERRORS as exc:
+        say(_with_option(_describe(exc), options), exc)
+        return EXIT_ERROR
+    except Exception as exc:
+        say(
+            f"internal error: {type(exc).__name__}: {_describe(exc)} (run with --debug for "
+            "the traceback)",
+            exc,
+        )
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

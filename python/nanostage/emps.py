@@ -142,18 +142,46 @@ class EmpsData:
 def default_emps_path() -> Path:
     """Where :func:`load_emps` looks by default.
 
-    ``$NANOSTAGE_EMPS_MAT`` if set, else ``<repo>/../shared/data/emps/DATA_EMPS.mat`` with
-    ``<repo>`` the checkout this module lives in (``python/nanostage/emps.py``).
+    ``$NANOSTAGE_EMPS_MAT`` if set, else ``<repo>/../shared/data/emps/DATA_EMPS.mat`` when
+    this module lives in a source checkout ``<repo>`` (``<repo>/python/nanostage/emps.py``
+    beside ``<repo>/pyproject.toml``) and that file exists.
+
+    Raises
+    ------
+    FileNotFoundError
+        Neither is there (an installed package has no default): pass the file's path.
     """
     env = os.environ.get(EMPS_ENV_VAR)
     if env:
         return Path(env)
-    repo = Path(__file__).resolve().parents[2]
-    return repo.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
+    here = Path(__file__).resolve()
+    repo = here.parents[2]
+    candidate = repo.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
+    if here.parent.parent.name == "python" and (repo / "pyproject.toml").is_file():
+        if candidate.is_file():
+            return candidate
+    raise FileNotFoundError(
+        f"no EMPS data file: pass the path of DATA_EMPS.mat (nanostage emps --mat PATH, "
+        f"load_emps(PATH)) or set {EMPS_ENV_VAR} (the default {candidate} exists only beside "
+        "a source checkout)"
+    )
+
+
+#: Largest plausible position of an EMPS-like axis (a ball-screw positioning unit), m:
+#: positions beyond it are taken as a unit mistake (millimetres in the metre variables).
+MAX_POSITION_M = 5.0
 
 
 def _vector(mat: dict[str, object], name: str, path: Path) -> FloatArray:
-    arr = np.asarray(mat[name], dtype=np.float64)
+    try:
+        arr = np.asarray(mat[name], dtype=np.float64)
+    except (TypeError, ValueError):
+        kind = type(mat[name]).__name__
+        dtype = getattr(mat[name], "dtype", None)
+        raise ValueError(
+            f"{path}: variable {name!r} is not numeric ({kind}"
+            f"{'' if dtype is None else f' of {dtype}'}), expected an N×1 vector of numbers"
+        ) from None
     if arr.ndim != 2 or min(arr.shape) != 1:
         raise ValueError(f"{path}: variable {name!r} has shape {arr.shape}, expected N×1")
     out = arr.reshape(-1)
@@ -163,10 +191,33 @@ def _vector(mat: dict[str, object], name: str, path: Path) -> FloatArray:
 
 
 def _scalar(mat: dict[str, object], name: str, path: Path) -> float:
-    arr = np.asarray(mat[name], dtype=np.float64)
-    if arr.size != 1 or not np.isfinite(arr).all():
-        raise ValueError(f"{path}: variable {name!r} should be one finite number, got {arr!r}")
+    try:
+        arr = np.asarray(mat[name], dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.size != 1 or not np.isfinite(arr).all():
+        shown = repr(mat[name]) if arr is None else repr(arr)
+        raise ValueError(f"{path}: variable {name!r} should be one finite number, got {shown:.80}")
     return float(arr.reshape(-1)[0])
+
+
+def _check_positions(qg: FloatArray, qm: FloatArray, path: Path) -> None:
+    """Positions in metres: within ±:data:`MAX_POSITION_M`, and qg and qm in one unit."""
+    for name, v in (("qg", qg), ("qm", qm)):
+        peak = float(np.max(np.abs(v)))
+        if peak > MAX_POSITION_M:
+            raise ValueError(
+                f"{path}: variable {name!r} reaches {peak:.6g}, beyond the ±{MAX_POSITION_M:g} m "
+                "of a ball-screw positioning axis: the positions look like millimetres; "
+                "store qg and qm in metres"
+            )
+    span_g = float(np.ptp(qg))
+    span_m = float(np.ptp(qm))
+    if span_g > 0.0 and span_m > 0.0 and not 0.01 <= span_m / span_g <= 100.0:
+        raise ValueError(
+            f"{path}: qm spans {span_m:.6g} but qg spans {span_g:.6g}: the measured and the "
+            "reference position must be in the same unit (metres)"
+        )
 
 
 def load_emps(path: str | os.PathLike[str] | None = None) -> EmpsData:
@@ -182,14 +233,22 @@ def load_emps(path: str | os.PathLike[str] | None = None) -> EmpsData:
 
     Raises
     ------
-    FileNotFoundError : the file does not exist.
-    ValueError : the file is not a readable MAT file, a variable is missing, or a variable
-        has the wrong shape or non-finite values. The message names the file and variable.
+    FileNotFoundError : the file does not exist (or, without ``path``, there is no default).
+    IsADirectoryError : the path is a folder.
+    ValueError : the file is not a readable MAT file, a variable is missing, not numeric, or
+        has the wrong shape or non-finite values, there are fewer than 2 samples, or the
+        positions are not plausibly metres (beyond ±5 m, or ``qg`` and ``qm`` spanning
+        ranges more than a hundred times apart). The message names the file and variable.
     """
     p = Path(path) if path is not None else default_emps_path()
+    if p.is_dir():
+        raise IsADirectoryError(
+            f"EMPS data file {p} is a folder: expected the path of DATA_EMPS.mat"
+        )
     if not p.is_file():
         raise FileNotFoundError(
-            f"EMPS data file not found: {p} (set {EMPS_ENV_VAR} to point at DATA_EMPS.mat)"
+            f"EMPS data file not found: {p} (pass the path of DATA_EMPS.mat or set "
+            f"{EMPS_ENV_VAR} to it)"
         )
     try:
         mat: dict[str, object] = _sio.loadmat(str(p))
@@ -203,6 +262,9 @@ def load_emps(path: str | os.PathLike[str] | None = None) -> EmpsData:
     lengths = {name: len(v) for name, v in zip(_VECTOR_VARS, (t, qg, qm, vir), strict=True)}
     if len(set(lengths.values())) != 1:
         raise ValueError(f"{p}: vectors differ in length: {lengths}")
+    if len(t) < 2:
+        raise ValueError(f"{p}: {len(t)} samples, expected at least 2")
+    _check_positions(qg, qm, p)
     time_s = np.arange(len(t), dtype=np.float64) * SAMPLE_PERIOD_S
     jitter_s = float(np.max(np.abs(t - time_s))) if len(t) else 0.0
     if jitter_s > _TIME_JITTER_TOL_S:

@@ -6,7 +6,6 @@ prediction under a known command disturbance (``nanostage emps``, ``nanostage pr
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import shutil
 from collections.abc import Mapping, Sequence
@@ -20,13 +19,15 @@ from scipy.optimize import least_squares
 from . import presets
 from .config import ForceDrivePlant, System
 from .diagnosis.manifest import get_path, replace_paths
-from .emps import EmpsData, emps_velocity_force, load_emps, relative_error
+from .emps import EmpsData, controller_fit, emps_velocity_force, load_emps, relative_error
 from .experiment import Experiment
+from .output import check_output_dir, staged_output, write_json
 from .simulate import Trace, simulate
 
 __all__ = [
     "OutputErrorFit",
     "Yardstick",
+    "check_study_data",
     "output_error_fit",
     "simulate_experiment",
     "yardstick",
@@ -180,22 +181,51 @@ def output_error_fit(
     )
 
 
-def _json(obj: Any) -> Any:
-    if isinstance(obj, Mapping):
-        return {str(k): _json(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_json(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
+#: Fewest samples the study accepts (0.1 s at 1 kHz).
+MIN_STUDY_SAMPLES = 100
+#: Largest rms difference between the logged command and the cascade controller law on the
+#: logged positions, as a fraction of the command's rms (DATA_EMPS: 0.24 %). Positions in
+#: millimetres, or a different controller, give 100 % or more.
+MAX_CONTROLLER_MISMATCH = 0.1
+
+
+def check_study_data(data: EmpsData) -> None:
+    """Check that the data suit the study: enough samples, and a logged command that the
+    documented cascade controller reproduces from the logged positions (which also catches
+    positions in millimetres: the law would be 1000 times too strong).
+
+    Raises
+    ------
+    ValueError
+        Naming the file, the value and the limit.
+    """
+    e = data.experiment
+    src = e.source or e.name
+    if e.n_samples < MIN_STUDY_SAMPLES:
+        raise ValueError(
+            f"{src}: {e.n_samples} samples, the EMPS study needs at least {MIN_STUDY_SAMPLES}"
+        )
+    command_rms = float(np.sqrt(np.mean(data.command_v**2)))
+    fit = controller_fit(data)
+    if not (command_rms > 0.0 and fit.rms_v <= MAX_CONTROLLER_MISMATCH * command_rms):
+        raise ValueError(
+            f"{src}: the logged command vir (rms {command_rms:.4g} V) differs from the cascade "
+            f"controller law on qg and qm by {fit.rms_v:.4g} V rms, more than "
+            f"{MAX_CONTROLLER_MISMATCH:.0%} of it: are qg and qm in metres (values in "
+            "millimetres make the law 1000 times too strong) and kp, kv the controller's gains?"
+        )
 
 
 def emps_study(out_dir: str | Path, *, mat_path: str | None = None) -> dict[str, Any]:
     """The EMPS study: authors' models and the output-error model against the data
-    (yardstick), written to ``out_dir/emps.json``."""
+    (yardstick), written to ``out_dir/emps.json``.
+
+    ``out_dir`` and the data (:func:`~nanostage.emps.load_emps`, :func:`check_study_data`)
+    are checked before any work; the folder is written whole or not at all
+    (:func:`nanostage.output.staged_output`)."""
+    check_output_dir(out_dir)
     data = load_emps(mat_path)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    check_study_data(data)
     results: dict[str, Any] = {"source": data.experiment.source}
     results["authors_reference"] = {"position": 0.00014, "force": 0.058, "velocity": 0.0023}
     results["authors_symmetric"] = yardstick(presets.emps(), data).to_dict()
@@ -207,7 +237,8 @@ def emps_study(out_dir: str | Path, *, mat_path: str | None = None) -> dict[str,
         "yardstick": yardstick(oe.system, data).to_dict(),
         "evaluations": oe.n_evaluations,
     }
-    (out / "emps.json").write_text(json.dumps(_json(results), indent=1))
+    with staged_output(out_dir, "emps") as folder:
+        write_json(results, folder / "emps.json", indent=1)
     return results
 
 
@@ -264,5 +295,5 @@ def write_manifest(
     p.parent.mkdir(parents=True, exist_ok=True)
     if not (data.exists() and data.samefile(mat_path)):
         shutil.copyfile(mat_path, data)
-    p.write_text("\n".join(lines))
+    p.write_text("\n".join(lines), encoding="utf-8")
     return p

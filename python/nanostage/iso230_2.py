@@ -36,6 +36,7 @@ Only numpy is required; matplotlib is imported lazily by :func:`plot` and is opt
 from __future__ import annotations
 
 import argparse
+import codecs
 import csv
 import functools
 import itertools
@@ -55,6 +56,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AXIS_PARAMETERS",
+    "LENGTH_UNITS",
     "MAX_PLAUSIBLE_DEVIATION_M",
     "MAX_PLAUSIBLE_TARGET_M",
     "MIN_RUNS",
@@ -88,6 +90,24 @@ MAX_PLAUSIBLE_TARGET_M: Final[float] = 10.0
 #: Unit plausibility heuristic: a deviation beyond ``this * max(1, |target| / 1 m)`` [m] is
 #: taken for a value in millimetres in a metre column.
 MAX_PLAUSIBLE_DEVIATION_M: Final[float] = 1e-3
+
+#: Length units a measurement CSV may be written in, with their size in metres: the columns
+#: ``target_m``/``actual_m`` hold metres, ``target_mm``/``actual_mm`` millimetres (or
+#: ``units=`` / ``--units`` says so for the whole file).
+LENGTH_UNITS: Final[dict[str, float]] = {"m": 1.0, "mm": 1e-3}
+
+#: Whole-file unit heuristic: targets read as metres that span at least this [m] ...
+MM_HEURISTIC_SPAN_M: Final[float] = 0.5
+#: ... with a mean interval above this [m] are taken for millimetres: ISO 230-2 asks for at
+#: least five target positions per metre on axes up to 2 m and an average interval of at
+#: most 250 mm on longer ones, so such a file is a millimetre test of a short stroke.
+MM_HEURISTIC_INTERVAL_M: Final[float] = 0.25
+
+#: The fix named by the unit errors.
+_UNITS_FIX: Final[str] = (
+    "if the file is in millimetres pass --units mm (units='mm'), or name the columns "
+    "target_mm and actual_mm"
+)
 
 #: Axis parameters in report order: (symbol, attribute of :class:`Iso230Result`, description).
 AXIS_PARAMETERS: Final[tuple[tuple[str, str, str], ...]] = (
@@ -708,23 +728,78 @@ def _group_records(
 
 
 def _check_units(
-    target: float, actual: float, fail: Callable[[str, str], Iso230InputError]
+    target: float,
+    actual: float,
+    fail: Callable[[str, str], Iso230InputError],
+    columns: tuple[str, str] = ("target_m", "actual_m"),
 ) -> None:
-    """Raise if a record looks like it holds millimetres in a metre column (see the CSV doc)."""
+    """Raise if a record looks like it holds millimetres in a metre column (see the CSV doc).
+    ``target`` and ``actual`` in metres; ``columns``: their column names for the message."""
     if abs(target) > MAX_PLAUSIBLE_TARGET_M:
         raise fail(
-            "target_m",
+            columns[0],
             f"target {target!r} m is beyond ±{MAX_PLAUSIBLE_TARGET_M:g} m; "
-            "the value looks like millimetres, but the column must be in metres",
+            f"the value looks like millimetres, but the column must be in metres: {_UNITS_FIX}",
         )
     limit = MAX_PLAUSIBLE_DEVIATION_M * max(1.0, abs(target))
     deviation = actual - target
     if abs(deviation) > limit:
         raise fail(
-            "actual_m",
+            columns[1],
             f"deviation actual - target = {deviation:.6g} m exceeds the plausibility limit "
             f"{limit:.3g} m; mixed units (millimetres in a metre column)?",
         )
+
+
+def _check_target_spacing(
+    targets_m: Sequence[float], fail: Callable[[str], Iso230InputError]
+) -> None:
+    """Raise if targets read as metres span a long travel with too few targets for an
+    ISO 230-2 test (:data:`MM_HEURISTIC_SPAN_M`, :data:`MM_HEURISTIC_INTERVAL_M`): a test of
+    a short stroke written in millimetres."""
+    t = np.unique(np.asarray(targets_m, dtype=np.float64))
+    if t.size < 2:
+        return
+    span = float(t[-1] - t[0])
+    interval = span / (t.size - 1)
+    if span >= MM_HEURISTIC_SPAN_M and interval > MM_HEURISTIC_INTERVAL_M:
+        raise fail(
+            f"{t.size} targets over {span:.6g} m, {interval:.3g} m apart on average: an "
+            "ISO 230-2 test has at least five targets per metre (at most "
+            f"{MM_HEURISTIC_INTERVAL_M:g} m apart), so the values look like millimetres of a "
+            f"{span:.6g} mm stroke (read as metres every deviation would be 1000 times too "
+            f"large); {_UNITS_FIX}; pass --units m (units='m') if they are metres"
+        )
+
+
+class _Utf8Error(Exception):
+    """Where a file stops being UTF-8: 0-based byte offset, 1-based line, the byte."""
+
+    def __init__(self, offset: int, line: int, byte: int, reason: str) -> None:
+        super().__init__(offset, line, byte, reason)
+        self.offset, self.line, self.byte, self.reason = offset, line, byte, reason
+
+
+def _find_utf8_error(path: Path, chunk_bytes: int = 1 << 20) -> _Utf8Error | None:
+    """The first byte of ``path`` that is not UTF-8, read in chunks (no whole-file copy)."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    pos = 0
+    lines = 0
+    with path.open("rb") as fh:
+        while True:
+            chunk = fh.read(chunk_bytes)
+            pending = decoder.getstate()[0]
+            try:
+                decoder.decode(chunk, final=not chunk)
+            except UnicodeDecodeError as exc:
+                data = pending + chunk
+                offset = pos - len(pending) + exc.start
+                line = lines + data[: exc.start].count(b"\n") + 1
+                return _Utf8Error(offset, line, data[exc.start], exc.reason)
+            if not chunk:
+                return None
+            pos += len(chunk)
+            lines += chunk.count(b"\n")
 
 
 def evaluate_records(
@@ -869,29 +944,37 @@ def read_measurement_csv(
     *,
     check_units: bool = True,
     target_tolerance_m: float = 1e-9,
+    units: str | None = None,
 ) -> MeasurementRecords:
     """Read and validate a measurement CSV file.
 
     The file has a header row with (at least) the columns ``target_m``, ``direction``,
     ``run`` and ``actual_m``, in any order; other columns are ignored. Each following row is
     one approach: target position [m], ``+`` or ``-``, run number (integer) and the measured
-    actual position [m]. Blank lines and lines starting with ``#`` (before or after the
-    header) are skipped, so metadata can be kept as comments. Line numbers in errors are
-    physical, 1-based line numbers of the file.
+    actual position [m]. A file in millimetres names its length columns ``target_mm`` and
+    ``actual_mm`` (each length column may carry its own unit), or is read with
+    ``units="mm"``. Blank lines and lines starting with ``#`` (before or after the header)
+    are skipped, so metadata can be kept as comments. Line numbers in errors are physical,
+    1-based line numbers of the file. The records are returned in metres.
 
-    **Unit heuristic** (``check_units=True``). The columns must be in metres, but files in
-    millimetres are a common mistake that would silently give results 1000 times too large.
-    A row is rejected when
+    **Unit heuristic** (``check_units=True``). Files in millimetres read as metres are a
+    common mistake that would silently give results 1000 times too large. A row is rejected
+    when
 
     * ``|target_m| > 10 m`` (no positioner this module is meant for has such a travel; a
       millimetre target of 10.5 mm read as metres would be 10.5 m), or
     * ``|actual_m - target_m| > 1e-3 m * max(1, |target_m| / 1 m)``: a positional deviation
       above 1 mm (or 1 mm per metre of target for long axes) is implausible for a positioning
       test, and is what one gets when one of the two columns is in millimetres and the other
-      in metres.
+      in metres;
 
-    A file written *entirely* in millimetres with targets within ±10 mm cannot be told apart
-    from a metre file with sub-metre deviations; the heuristic cannot catch that case.
+    and, for columns named in metres without an explicit ``units``, the whole file is
+    rejected when its targets span at least 0.5 m with fewer targets than ISO 230-2 asks
+    for (at least five per metre, at most 0.25 m apart on average): targets 0, 1, ... 10
+    with sub-micrometre-looking deviations are a 10 mm stroke in millimetres, not a 10 m
+    axis. A file written *entirely* in millimetres with a stroke under 0.5 mm, or with
+    targets at most 0.25 mm apart, cannot be told apart from a metre file; the heuristic
+    cannot catch that case.
 
     Parameters
     ----------
@@ -901,6 +984,8 @@ def read_measurement_csv(
         Apply the unit heuristic above.
     target_tolerance_m : float, default 1e-9
         Targets closer than this [m] are the same target position.
+    units : {"m", "mm"}, optional
+        The unit of both length columns whatever their names say (default: from the names).
 
     Returns
     -------
@@ -914,18 +999,40 @@ def read_measurement_csv(
         With a message ``"<file>, line <n>, column '<name>': <reason>"`` for: a missing or
         duplicated required column, an empty, NaN/infinite or unparseable value, an unknown
         direction, a non-integer or duplicate run number, fewer than 2 runs at a target in a
-        direction, a row with more fields than the header, and (with ``check_units``)
-        values that look like millimetres.
+        direction, a row with more fields than the header, text that is not UTF-8 (with the
+        byte offset), an unknown ``units``, and (with ``check_units``) values that look like
+        millimetres.
     OSError
         If the file cannot be read.
     """
     src = str(path)
+    if units is not None and units not in LENGTH_UNITS:
+        raise Iso230InputError(
+            f"units = {units!r} is invalid: expected one of {', '.join(LENGTH_UNITS)}"
+        )
+    try:
+        return _read_measurement_csv(Path(path), src, check_units, float(target_tolerance_m), units)
+    except UnicodeDecodeError:
+        bad = _find_utf8_error(Path(path))
+        if bad is None:  # pragma: no cover - the decoder failed, so the scan finds it
+            raise
+        raise Iso230InputError(
+            f"not UTF-8 text: byte 0x{bad.byte:02x} at byte offset {bad.offset} cannot be "
+            f"decoded ({bad.reason}); save the file as UTF-8",
+            source=src,
+            line=bad.line,
+        ) from None
+
+
+def _read_measurement_csv(
+    path: Path, src: str, check_units: bool, target_tolerance_m: float, units: str | None
+) -> MeasurementRecords:
     targets: list[float] = []
     dirs: list[str] = []
     runs: list[int] = []
     actuals: list[float] = []
     lines: list[int] = []
-    with Path(path).open(newline="", encoding="utf-8-sig") as fh:
+    with path.open(newline="", encoding="utf-8-sig") as fh:
         reader = csv.reader(fh)
         header: list[str] | None = None
         header_line = 1
@@ -940,24 +1047,46 @@ def read_measurement_csv(
                 source=src,
                 line=max(reader.line_num, 1),
             )
-        index: dict[str, int] = {}
+        # The length columns: target_m or target_mm, actual_m or actual_mm.
+        names: dict[str, str] = {}
+        scale: dict[str, float] = {}
         for name in REQUIRED_COLUMNS:
-            count = header.count(name)
-            if count == 0:
+            base = name.removesuffix("_m")
+            present = (
+                [f"{base}_{u}" for u in LENGTH_UNITS if f"{base}_{u}" in header]
+                if base != name
+                else ([name] if name in header else [])
+            )
+            if not present:
+                also = " (lengths may be in mm: target_mm, actual_mm)" if base != name else ""
                 raise Iso230InputError(
-                    f"missing required column (header has: {', '.join(header)})",
+                    f"missing required column (header has: {', '.join(header)}){also}",
                     source=src,
                     line=header_line,
                     column=name,
                 )
-            if count > 1:
+            if len(present) > 1:
+                raise Iso230InputError(
+                    f"both {' and '.join(present)} in the header; give one",
+                    source=src,
+                    line=header_line,
+                    column=name,
+                )
+            names[name] = present[0]
+            if base != name:
+                unit = units if units is not None else present[0].rsplit("_", 1)[1]
+                scale[name] = LENGTH_UNITS[unit]
+        index: dict[str, int] = {}
+        for name, col in names.items():
+            if header.count(col) > 1:
                 raise Iso230InputError(
                     "column appears more than once in the header",
                     source=src,
                     line=header_line,
-                    column=name,
+                    column=col,
                 )
-            index[name] = header.index(name)
+            index[name] = header.index(col)
+        length_cols = (names["target_m"], names["actual_m"])
 
         for row in reader:
             if _skip_row(row):
@@ -978,18 +1107,18 @@ def read_measurement_csv(
                 j = index[name]
                 value = row[j].strip() if j < len(row) else ""
                 if not value:
-                    raise fail(name, "empty value")
+                    raise fail(names[name], "empty value")
                 return value
 
-            t = _parse_float(cell("target_m"), "target_m", fail)
+            t = _parse_float(cell("target_m"), names["target_m"], fail) * scale["target_m"]
             d_raw = cell("direction")
             d = _parse_direction(d_raw)
             if d is None:
                 raise fail("direction", f"unknown direction {d_raw!r}; use '+' or '-'")
             r = _parse_int(cell("run"), fail)
-            a = _parse_float(cell("actual_m"), "actual_m", fail)
+            a = _parse_float(cell("actual_m"), names["actual_m"], fail) * scale["actual_m"]
             if check_units:
-                _check_units(t, a, fail)
+                _check_units(t, a, fail, length_cols)
             targets.append(t)
             dirs.append(d)
             runs.append(r)
@@ -999,6 +1128,13 @@ def read_measurement_csv(
     if not targets:
         raise Iso230InputError(
             "no data rows after the header", source=src, line=header_line, column=None
+        )
+    if check_units and units is None and length_cols == ("target_m", "actual_m"):
+        _check_target_spacing(
+            targets,
+            lambda message: Iso230InputError(
+                message, source=src, line=header_line, column="target_m"
+            ),
         )
     line_arr = np.array(lines, dtype=np.int64)
 
@@ -1012,7 +1148,7 @@ def read_measurement_csv(
         runs,
         actuals,
         locate=locate,
-        target_tolerance_m=float(target_tolerance_m),
+        target_tolerance_m=target_tolerance_m,
         check_units=False,
     )
     t_arr = _readonly(targets)
@@ -1395,6 +1531,13 @@ def add_cli(
     )
     p.add_argument("--title", default=None, help="report title (default: from the file name)")
     p.add_argument(
+        "--units",
+        choices=sorted(LENGTH_UNITS),
+        default=None,
+        help="unit of the length columns whatever their names say (default: from the "
+        "names: target_m/actual_m in metres, target_mm/actual_mm in millimetres)",
+    )
+    p.add_argument(
         "--no-unit-check",
         action="store_true",
         help="do not reject values that look like millimetres",
@@ -1406,37 +1549,48 @@ def add_cli(
 def run_cli(args: argparse.Namespace) -> int:
     """Run the ``iso230`` subcommand parsed by the parser from :func:`add_cli`.
 
-    Prints the axis parameter table and the written paths to stdout.
+    Prints the axis parameter table and the written paths to stdout. The output folder is
+    checked before the file is read and written whole or not at all
+    (:func:`nanostage.output.staged_output`).
 
     Parameters
     ----------
     args : argparse.Namespace
-        With ``file``, ``out``, ``coverage_factor`` and optionally ``title`` and
+        With ``file``, ``out``, ``coverage_factor`` and optionally ``title``, ``units`` and
         ``no_unit_check``.
 
     Returns
     -------
     int
-        Exit status: 0 on success, 1 if the file cannot be read or the report cannot be
-        written, 2 on invalid input data (message on stderr).
+        Exit status: 0 on success, 2 on invalid input data, a file that cannot be read or
+        an output folder that cannot be used (one line on stderr).
     """
+    from .output import OutputError, check_output_dir, staged_output
+
     path = Path(args.file)
     out = Path(args.out) if args.out is not None else path.with_name(f"{path.stem}_iso230_2")
     title = getattr(args, "title", None) or f"ISO 230-2 positioning test: {path.name}"
     try:
-        records = read_measurement_csv(path, check_units=not getattr(args, "no_unit_check", False))
+        check_output_dir(out)
+        records = read_measurement_csv(
+            path,
+            check_units=not getattr(args, "no_unit_check", False),
+            units=getattr(args, "units", None),
+        )
         result = records.evaluate(coverage_factor=args.coverage_factor)
-        files = write_report(result, out, title=title)
-    except Iso230InputError as exc:
-        print(f"iso230: error: {exc}", file=sys.stderr)
+        with staged_output(out, "iso230") as folder:
+            staged = write_report(result, folder, title=title)
+    except (Iso230InputError, OutputError) as exc:
+        print(f"nanostage iso230: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"iso230: error: {exc}", file=sys.stderr)
-        return 1
+        where = f"{exc.filename}: " if exc.filename is not None else ""
+        print(f"nanostage iso230: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     print(result.summary_table_markdown(), end="")
-    for f in (files.json, files.markdown, files.png):
+    for f in (staged.json, staged.markdown, staged.png):
         if f is not None:
-            print(f"wrote {f}")
-    if files.png is None:
+            print(f"wrote {out / f.name}")
+    if staged.png is None:
         print("warning: matplotlib is not installed; no plot written", file=sys.stderr)
     return 0

@@ -23,6 +23,7 @@ import json
 import math
 import os
 import re
+import secrets
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
@@ -157,6 +158,19 @@ def _files(root: Path) -> list[str]:
     return sorted(str(f.relative_to(root)) for f in root.rglob("*") if f.is_file())
 
 
+def _fresh_dir(parent: Path, prefix: str) -> Path:
+    """A new folder ``parent/prefix<random>`` with the permissions of a plain ``mkdir`` (the
+    umask applies; :func:`tempfile.mkdtemp` would make it private to the user)."""
+    for _ in range(100):
+        p = parent / f"{prefix}{secrets.token_hex(4)}"
+        try:
+            p.mkdir()
+        except FileExistsError:
+            continue
+        return p
+    raise OutputError(f"cannot create a temporary folder {prefix}* in {str(parent)!r}")
+
+
 @contextmanager
 def staged_output(out: str | Path, command: str) -> Iterator[Path]:
     """Write a run's output folder whole or not at all.
@@ -174,7 +188,7 @@ def staged_output(out: str | Path, command: str) -> Iterator[Path]:
     """
     target = check_output_dir(out)
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+    tmp = _fresh_dir(target.parent, f".{target.name}.partial-")
     try:
         yield tmp
         write_json({"command": command, "files": _files(tmp)}, tmp / RUN_MANIFEST)

@@ -36,7 +36,6 @@ told apart by these tests; that may be why the paper quotes one number for both.
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import time
 from collections.abc import Callable
@@ -48,14 +47,17 @@ import numpy as np
 from scipy.optimize import brentq
 
 from . import presets
-from .campaign import CampaignResult, run_campaign
+from ._core import ConfigError
+from .campaign import MAX_THREADS, MAX_TRIALS, CampaignResult, run_campaign
 from .config import System
 from .cycles import Cycle, step_cycle
 from .effects import Backlash, StochasticFriction
+from .output import staged_output, write_json
 
 __all__ = [
     "PAPER_FIGURES_M",
     "CampaignSettings",
+    "check_threads",
     "paper_campaigns",
     "step_campaign",
     "write_paper_campaigns",
@@ -121,11 +123,59 @@ class CampaignSettings:
 
     def __post_init__(self) -> None:
         w = self.backlash_width_m
-        if not (math.isfinite(w) and 0.0 <= w <= MAX_BACKLASH_M):
-            raise ValueError(
+        if not (isinstance(w, int | float) and math.isfinite(w) and 0.0 <= w <= MAX_BACKLASH_M):
+            raise ConfigError(
                 f"CampaignSettings.backlash_width_m = {w!r} is invalid: expected a width in "
                 f"[0, {MAX_BACKLASH_M:g}] m (0: no backlash)"
             )
+        _check_int("n_trials", self.n_trials, 1, MAX_TRIALS)
+        _check_int("seed", self.seed, 0, 2**64 - 1)
+        _check_int("repeats", self.repeats, 1, 2**31 - 1)
+        spreads = self.spreads
+        if (
+            not isinstance(spreads, tuple)
+            or not spreads
+            or not all(
+                isinstance(s, int | float) and not isinstance(s, bool) and 0.0 <= s <= 0.5
+                for s in spreads
+            )
+        ):
+            raise ConfigError(
+                f"CampaignSettings.spreads = {spreads!r} is invalid: expected a non-empty "
+                "tuple of level spreads in [0, 0.5]"
+            )
+        x = self.xtol
+        if not (isinstance(x, int | float) and math.isfinite(x) and 0.0 < x <= 0.1):
+            raise ConfigError(
+                f"CampaignSettings.xtol = {x!r} is invalid: expected a tolerance in (0, 0.1]"
+            )
+        # The cycle's own checks (dwell and return times, total length), before any work.
+        for step in (CALIBRATION_STEP_M, PREDICTION_STEP_M):
+            _cycle(step, self)
+
+
+def _check_int(name: str, value: object, lo: int, hi: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ConfigError(
+            f"CampaignSettings.{name} = {value!r} is invalid: expected an integer in [{lo}, {hi}]"
+        )
+
+
+def check_threads(threads: int | None) -> None:
+    """Check a campaign thread count (``None``: all cores) before any work.
+
+    Raises
+    ------
+    ConfigError
+        ``threads`` is not an integer in [1, :data:`~nanostage.campaign.MAX_THREADS`].
+    """
+    if threads is not None and (
+        isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= MAX_THREADS
+    ):
+        raise ConfigError(
+            f"threads = {threads!r} is invalid: expected an integer in [1, {MAX_THREADS}] "
+            "(or None: all cores)"
+        )
 
 
 def _cycle(step_m: float, st: CampaignSettings) -> Cycle:
@@ -364,11 +414,29 @@ def write_paper_campaigns(
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Run :func:`paper_campaigns`, write ``campaigns.json`` and ``campaigns.md``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    """Run :func:`paper_campaigns`, write ``campaigns.json`` and ``campaigns.md``.
+
+    The folder is written whole or not at all (:func:`nanostage.output.staged_output`): it
+    must be new, empty or an earlier run's folder, which is checked before any work.
+    """
+    check_threads(threads)
+    with staged_output(out_dir, "reproduce --campaigns") as folder:
+        return write_paper_campaigns_into(folder, st, threads=threads, log=log)
+
+
+def write_paper_campaigns_into(
+    folder: Path,
+    st: CampaignSettings | None = None,
+    *,
+    threads: int | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """:func:`write_paper_campaigns` writing straight into an existing ``folder`` (a staged
+    one)."""
+    check_threads(threads)
+    out = Path(folder)
     res = paper_campaigns(st, threads=threads, log=log)
-    (out / "campaigns.json").write_text(json.dumps(res, indent=2), encoding="utf-8")
+    write_json(res, out / "campaigns.json", indent=2)
     md = markdown(res)
     (out / "campaigns.md").write_text(md, encoding="utf-8")
     res["markdown"] = md

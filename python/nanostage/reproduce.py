@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass
@@ -11,6 +10,7 @@ from pathlib import Path
 from . import presets
 from .analysis import StepMetrics, step_metrics
 from .config import FpgaPid, Plant
+from .output import staged_output, write_json
 from .simulate import Trace, simulate_step
 
 #: (step size, simulated duration) of the paper's experiments.
@@ -88,9 +88,18 @@ def table(exps: list[Experiment]) -> str:
 
 
 def reproduce(out_dir: str | Path, *, plot: bool = True) -> dict[str, object]:
-    """Run the experiments, write ``summary.json`` (and ``steps.png``), return the summary."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    """Run the experiments, write ``summary.json`` (and ``steps.png``), return the summary.
+
+    The folder is written whole or not at all (:func:`nanostage.output.staged_output`): it
+    must be new, empty or an earlier run's folder, which is checked before any work.
+    """
+    with staged_output(out_dir, "reproduce") as folder:
+        return reproduce_into(folder, plot=plot)
+
+
+def reproduce_into(folder: Path, *, plot: bool = True) -> dict[str, object]:
+    """:func:`reproduce` writing straight into an existing ``folder`` (a staged one)."""
+    out = Path(folder)
     t0 = time.perf_counter()
     exps = run_experiments()
     compute_s = time.perf_counter() - t0
@@ -116,7 +125,7 @@ def reproduce(out_dir: str | Path, *, plot: bool = True) -> dict[str, object]:
         },
         "compute_time_s": compute_s,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    write_json(summary, out / "summary.json", indent=2)
     if plot:
         from .plotting import plot_steps
 

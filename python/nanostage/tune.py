@@ -45,7 +45,6 @@ Example::
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -65,6 +64,7 @@ from .campaign import CampaignResult, _Bar, _int_arg, run_campaign
 from .config import AntiWindup, FpgaPid, System
 from .cycles import Cycle, step_cycle
 from .effects import StochasticFriction
+from .output import staged_output, write_json
 
 __all__ = [
     "ANTI_WINDUP_OPTIONS",
@@ -1134,23 +1134,19 @@ def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
 def write_tune_report(
     out_dir: str | Path, report: dict[str, Any], *, plot: bool = True
 ) -> dict[str, Path]:
-    """Write ``tune.json``, ``tune.md`` and (with matplotlib) ``pareto.png`` to ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    files = {"json": out / "tune.json", "markdown": out / "tune.md"}
+    """Write ``tune.json``, ``tune.md`` and (with matplotlib) ``pareto.png`` to ``out_dir``.
 
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list):
-            return [clean(x) for x in v]
-        return v
-
-    files["json"].write_text(json.dumps(clean(report), indent=1) + "\n")
-    files["markdown"].write_text("# Table 1 against tuned gains\n\n" + markdown(report))
+    The folder is written whole or not at all (:func:`nanostage.output.staged_output`): it
+    must be new, empty or an earlier run's folder. Returns the paths in ``out_dir``.
+    """
+    names = {"json": "tune.json", "markdown": "tune.md"}
     if plot:
-        files["pareto"] = out / "pareto.png"
-        plot_pareto(report, files["pareto"])
-    return files
+        names["pareto"] = "pareto.png"
+    with staged_output(out_dir, "tune") as folder:
+        write_json(report, folder / names["json"], indent=1)
+        (folder / names["markdown"]).write_text(
+            "# Table 1 against tuned gains\n\n" + markdown(report), encoding="utf-8"
+        )
+        if plot:
+            plot_pareto(report, folder / names["pareto"])
+    return {k: Path(out_dir) / n for k, n in names.items()}

@@ -24,16 +24,16 @@ what the drawn data allow) and the truth-started check (is the effect detectable
 from __future__ import annotations
 
 import dataclasses as dc
-import json
 import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
 from .. import presets
+from .._core import ConfigError
 from ..config import Plant, System
 from ..effects import (
     Backlash,
@@ -46,6 +46,7 @@ from ..effects import (
     lead_periodic_friction,
 )
 from ..experiment import Experiment
+from ..output import check_output_dir, staged_output, write_json
 from ..simulate import simulate
 from .candidates import motor_static_force_n
 from .engine import DiagnosisSettings
@@ -56,6 +57,8 @@ from .traces import write_trace_csv
 __all__ = [
     "DESIGN",
     "HIDDEN_EFFECTS",
+    "MAX_CASES",
+    "MAX_SEED",
     "SPEED_DESIGN",
     "design_reference",
     "draw_truth",
@@ -64,6 +67,11 @@ __all__ = [
     "run_benchmark",
     "truth_starts",
 ]
+
+#: Most cases of one benchmark run.
+MAX_CASES: Final[int] = 10_000
+#: Largest seed of the case draws (a case's seeds are derived from it).
+MAX_SEED: Final[int] = 2**32 - 1
 
 #: Hidden effects drawn by the benchmark ("none": the nominal structure is right).
 HIDDEN_EFFECTS: tuple[str, ...] = (
@@ -387,9 +395,9 @@ def generate_case(
             "",
         ]
     manifest = out_dir / "manifest.toml"
-    manifest.write_text("\n".join(lines))
+    manifest.write_text("\n".join(lines), encoding="utf-8")
     truth_info = {"hidden": hidden, **info, "seed": seed}
-    (out_dir / "truth.json").write_text(json.dumps(truth_info, indent=1))
+    write_json(truth_info, out_dir / "truth.json", indent=1)
     return manifest, truth_info
 
 
@@ -461,9 +469,47 @@ def run_benchmark(
     round: a case is *detectable* when that check selects it, i.e. when even knowing the
     answer the data show the effect above the noise floor by the same rules. It measures the
     information in the data, not the diagnosis; the scores over all cases stay the goal
-    metrics."""
-    out = Path(out_dir)
-    names = list(hidden or HIDDEN_EFFECTS)
+    metrics.
+
+    Every argument and ``out_dir`` are checked before any work; the folder (the cases'
+    traces, manifests and reports, and the scores) is written whole or not at all
+    (:func:`nanostage.output.staged_output`).
+
+    Raises
+    ------
+    ConfigError
+        ``cases`` not an integer in [1, :data:`MAX_CASES`], ``seed`` not one in
+        [0, :data:`MAX_SEED`], or an unknown name in ``hidden``.
+    OutputError
+        ``out_dir`` cannot be used (an existing file, a folder of other files, not writable).
+    """
+    for name, value, lo, hi in (("cases", cases, 1, MAX_CASES), ("seed", seed, 0, MAX_SEED)):
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            raise ConfigError(f"{name} = {value!r} is invalid: expected an integer in [{lo}, {hi}]")
+    names = list(HIDDEN_EFFECTS if hidden is None else hidden)
+    unknown = [h for h in names if h not in HIDDEN_EFFECTS]
+    if not names or unknown:
+        raise ConfigError(
+            f"hidden = {names!r} is invalid: expected a non-empty list of "
+            f"{', '.join(HIDDEN_EFFECTS)}"
+        )
+    check_output_dir(out_dir)
+    with staged_output(out_dir, "diagnose-benchmark") as folder:
+        return _run_benchmark(
+            folder, cases, seed, names, settings, progress=progress, truth_check=truth_check
+        )
+
+
+def _run_benchmark(
+    out: Path,
+    cases: int,
+    seed: int,
+    names: list[str],
+    settings: DiagnosisSettings | None,
+    *,
+    progress: bool,
+    truth_check: bool,
+) -> dict[str, Any]:
     rows = []
     t0 = time.perf_counter()
     for c in range(cases):
@@ -574,8 +620,7 @@ def run_benchmark(
         "confusion": confusion,
         "rows": rows,
     }
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "benchmark.json").write_text(json.dumps(summary, indent=1, default=float))
+    write_json(summary, out / "benchmark.json", indent=1)
     md = [
         "# Diagnosis blind benchmark",
         "",
@@ -638,5 +683,5 @@ def run_benchmark(
             f"| {'—' if oc is None else f'{oc:.0%}'} "
             f"| {'—' if ex is None else f'{ex:.0%}'} | {r['seconds']:.0f} | {_check_cell(r)} |"
         )
-    (out / "benchmark.md").write_text("\n".join(md) + "\n")
+    (out / "benchmark.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     return summary

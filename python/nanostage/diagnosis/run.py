@@ -33,6 +33,7 @@ import numpy as np
 
 from ..config import System
 from ..experiment import Experiment
+from ..output import check_output_dir, staged_output
 from .candidates import CANDIDATES, Param, applicable_candidates
 from .engine import (
     CandidateResult,
@@ -335,7 +336,11 @@ def diagnose(
     figures: bool = True,
 ) -> Diagnosis:
     """Diagnose the gap between a nominal model and measured experiments (see the module
-    docstring for the report). All input errors are raised before any fitting."""
+    docstring for the report). All input errors are raised before any fitting, and so is
+    an unusable ``out_dir`` (:func:`nanostage.output.check_output_dir`); the folder is
+    written whole or not at all (:func:`nanostage.output.staged_output`)."""
+    if out_dir is not None:
+        check_output_dir(out_dir)
     setup = _setup(manifest)
     m, nominal, free, folds = setup.manifest, setup.nominal, setup.free, setup.folds
     adapt = setup.adapt
@@ -373,7 +378,8 @@ def diagnose(
             }
             for e, s in zip(val, sims, strict=True)
         ]
-        write_report(report, out_dir, gap_experiments=gap_exps, figures=figures)
+        with staged_output(out_dir, "diagnose") as folder:
+            write_report(report, folder, gap_experiments=gap_exps, figures=figures)
         written = Path(out_dir)
     return Diagnosis(report=report, out_dir=written, model=out["final"].system)
 
