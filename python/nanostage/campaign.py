@@ -289,6 +289,32 @@ class CampaignResult:
 # --------------------------------------------------------------------------------------------
 
 
+#: Seconds between two checks of a pool worker that the process it works for still runs.
+_PARENT_POLL_S: Final[float] = 0.2
+#: The process a worker process of this module watches (see :func:`_watch_parent`).
+_watched_parent: int | None = None
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """In a worker process started by the campaign's own process (a process pool), exit
+    when that process is gone, so that a campaign killed by SIGTERM or SIGKILL does not leave
+    its pool's workers behind (they would otherwise wait for work for ever). Does nothing in
+    the campaign's own process (threads) or in a process that is not its direct child (a
+    Dask worker: Dask watches its own workers)."""
+    global _watched_parent
+    if parent_pid == os.getpid() or os.getppid() != parent_pid or _watched_parent == parent_pid:
+        return
+    _watched_parent = parent_pid
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(_PARENT_POLL_S)
+        _core.campaign_request_stop()
+        os._exit(1)
+
+    threading.Thread(target=watch, name="nanostage-parent-watch", daemon=True).start()
+
+
 def _run_chunk(
     system: System,
     cycle_reference: FloatArray,
@@ -297,12 +323,17 @@ def _run_chunk(
     stop: int,
     seed: int,
     threads: int = 1,
+    parent_pid: int | None = None,
 ) -> dict[str, Any]:
     """Trials ``start..stop`` of a campaign (the unit of work an executor runs).
 
     Top level so that it pickles. Returns the core's dict: ``position_m``, ``encoder_m``
     (shape ``(stop - start, n_measurements)``), ``status``, and the ``failed_*`` entries.
+    ``parent_pid``: the process running the campaign; a pool worker it started exits when
+    that process is gone (:func:`_watch_parent`).
     """
+    if parent_pid is not None:
+        _watch_parent(int(parent_pid))
     return _core.campaign_run(
         system,
         np.ascontiguousarray(cycle_reference, dtype=np.float64),
@@ -422,13 +453,23 @@ def _run_executor(
     executor: _Submitter,
     bar: _Bar,
 ) -> list[dict[str, Any]]:
-    futures: list[_Future] = [
-        executor.submit(
-            _run_chunk, system, cycle.reference_m, cycle.measure_index, a, b, seed, threads
-        )
-        for a, b in bounds
-    ]
+    me = os.getpid()
+    futures: list[_Future] = []
     try:
+        for a, b in bounds:
+            futures.append(
+                executor.submit(
+                    _run_chunk,
+                    system,
+                    cycle.reference_m,
+                    cycle.measure_index,
+                    a,
+                    b,
+                    seed,
+                    threads,
+                    me,
+                )
+            )
         while True:
             done = [f.done() for f in futures]
             bar.update(sum(b - a for (a, b), d in zip(bounds, done, strict=True) if d))
@@ -437,6 +478,9 @@ def _run_executor(
             time.sleep(_REFRESH_S)
         return [f.result() for f in futures]
     except BaseException:
+        # Ctrl-C, SIGTERM (raised as KeyboardInterrupt by the command line) or a failed
+        # chunk: the chunks not yet started are cancelled. The executor is the caller's: it
+        # is not shut down (a running chunk ends on its own, or with its worker process).
         for f in futures:
             f.cancel()
         raise
