@@ -786,7 +786,7 @@ def test_json_handles_numpy_and_nan_and_round_trips(tmp_path: Path) -> None:
         "p": tmp_path,
     }
     path = write_json(data, tmp_path / "r.json")
-    text = path.read_text()
+    text = path.read_text(encoding="utf-8")
     assert "NaN" not in text and "Infinity" not in text
     back = json.loads(text)
     assert back == {
@@ -817,10 +817,10 @@ def test_report_files_tables_and_figures(tmp_path: Path) -> None:
     files = write_report(
         report, tmp_path / "out", gap_experiments=[g.figure_data() for g in before.experiments]
     )
-    back = json.loads(files.json.read_text())
+    back = json.loads(files.json.read_text(encoding="utf-8"))
     assert back["selected"] == ["lugre"]
     assert back["gap_before"]["overall"]["rms_m"] == pytest.approx(before.overall.rms_m)
-    md = files.markdown.read_text()
+    md = files.markdown.read_text(encoding="utf-8")
     assert "## Gap per segment" in md and "| Segment | n | RMS before [µm] |" in md
     assert "| slew |" in md and "#### By motion" in md
     assert "## Candidates (ranked)" in md and "| 1 | lugre | 0.9 | 0.2 |" in md

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -148,7 +149,7 @@ def test_an_invalid_parameter_region_is_a_bad_fit_not_the_best(tmp_path: Path) -
     """Parameter sets whose model is invalid (here: a Coulomb torque above the static one)
     are charged a huge gap, so a start in that region can never beat a valid fit."""
     m = _case(tmp_path, Effects(), seed=6)
-    text = m.read_text().replace(
+    text = m.read_text(encoding="utf-8").replace(
         'free = ["plant.dahl.coulomb_force_n"]',
         'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.coulomb_torque_nm"]\n'
         '[model.bounds]\n"plant.motor_friction.coulomb_torque_nm" = [5e-5, 2e-4]',
@@ -630,7 +631,7 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     # offset shifts the static and the sliding level by the same force, the asymmetry by
     # 0.3 of each, which differ by 20 %), and which of the two wins is a coin toss.
     m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
-    m.write_text(m.read_text().replace('"offset_force", ', ""))
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
     d = diagnose(m, tmp_path / "out", settings=FAST, progress=False, figures=False)
     r = d.report
     assert r["selected"] == ["asymmetric_friction"]
@@ -659,11 +660,11 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     assert cf["folds"] == min(FAST.crossfit_folds, len(val_names))
     assert cf["gap_after_rms_m"] < 0.5 * cf["gap_before_rms_m"]
     assert cf["shrink"] == pytest.approx(1.0 - cf["gap_after_rms_m"] / cf["gap_before_rms_m"])
-    on_disk = json.loads((tmp_path / "out" / "report.json").read_text())
+    on_disk = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
     for key in ("gap_before", "candidates", "selected", "gap_after", "crossfit"):
         assert key in on_disk
     assert {"total_rms_m", "by_segment"} <= set(on_disk["gap_before"])
-    md = (tmp_path / "out" / "report.md").read_text()
+    md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert "asymmetric_friction" in md
     assert f"| shrink | {cf['shrink']:.1%} |" in md
     # Every candidate parameter has its unit; the evidence repeats the selected effect's
@@ -996,11 +997,14 @@ def test_simulation_cache_looks_up_repeats_and_drops_the_least_recently_used() -
 
 def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:
     m = _case(tmp_path, Effects(), seed=5)
-    m.write_text(m.read_text().replace('"offset_force"', '"offset_farce"'))
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force"', '"offset_farce"'))
     p = subprocess.run(
         [sys.executable, "-m", "nanostage.cli", "diagnose", str(m), "--out", str(tmp_path / "o")],
+        stdin=subprocess.DEVNULL,
         capture_output=True,
-        text=True,
+        encoding="utf-8",
+        env={**os.environ, "PYTHONIOENCODING": "utf-8"},
+        timeout=600,
         check=False,
     )
     assert p.returncode == 2
@@ -1338,7 +1342,9 @@ def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) ->
     assert row["oracle_shrink"] == pytest.approx(1 - row["oracle_rms_m"] / row["gap_before_rms_m"])
     assert s["median_oracle_shrink"] == row["oracle_shrink"]
     assert (
-        json.loads((tmp_path / "benchmark.json").read_text())["median_oracle_shrink"]
+        json.loads((tmp_path / "benchmark.json").read_text(encoding="utf-8"))[
+            "median_oracle_shrink"
+        ]
         == (row["oracle_shrink"])
     )
-    assert "truth's shrink" in (tmp_path / "benchmark.md").read_text()
+    assert "truth's shrink" in (tmp_path / "benchmark.md").read_text(encoding="utf-8")

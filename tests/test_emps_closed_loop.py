@@ -137,7 +137,7 @@ def test_predict_with_a_known_pulse_train(tmp_path: Path) -> None:
 
 def test_predict_bad_input_names_the_file_and_line(tmp_path: Path) -> None:
     manifest, _, _ = _pulse_case(tmp_path)
-    lines = (tmp_path / "pulses.csv").read_text().splitlines()
+    lines = (tmp_path / "pulses.csv").read_text(encoding="utf-8").splitlines()
     lines[5] = lines[5].replace(",", ",x", 1)
     (tmp_path / "pulses.csv").write_text("\n".join(lines))
     with pytest.raises(PredictError, match=r"pulses.csv: line 6, column 'reference_m'"):

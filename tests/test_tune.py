@@ -311,14 +311,14 @@ def test_cli_writes_the_report(tmp_path, capsys) -> None:
         ]
     )
     assert code == 0
-    rep = json.loads((out / "tune.json").read_text())
+    rep = json.loads((out / "tune.json").read_text(encoding="utf-8"))
     row = rep["steps"][0]
     assert row["step_m"] == pytest.approx(STEP_M)
     assert (row["table1"]["kp"], row["table1"]["ki"], row["table1"]["kd"]) == (450, 2, 40)
     assert row["tuned"]["objective"] is not None
     assert row["pareto"] and len(row["history"]) >= len(row["pareto"])
     assert (out / "pareto.png").stat().st_size > 10_000
-    text = (out / "tune.md").read_text()
+    text = (out / "tune.md").read_text(encoding="utf-8")
     assert "Table 1" in text and "tuned" in text
     assert "| 100 µm | Table 1 | 450, 2, 40 |" in capsys.readouterr().out
     assert main(["tune", "--step-um", "100", "--trials", "0", "--quiet", "--out", str(out)]) == 2
