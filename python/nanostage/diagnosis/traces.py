@@ -834,7 +834,7 @@ def _validate(table: _Table, *, travel_m: float | None = None, needs_move: bool 
             what = (
                 f"exceeds {MAX_TRAVEL_M:g} m (the axes travel at most 0.5 m)"
                 if travel_m is None
-                else f"m exceeds the axis travel of {travel_m:g} m (travel_m)"
+                else f"m exceeds the axis travel of {travel_m:g} m (model.travel_m)"
             )
             raise table.error(
                 f"peak-to-peak {p2p:.6g} {what}: the column looks like millimetres; {_mm_fix(c)}",
