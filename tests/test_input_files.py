@@ -548,6 +548,16 @@ def test_a_valid_prediction_manifest_with_every_option(tmp_path: Path) -> None:
     ]
 
 
+def test_predict_reads_npz_traces_and_leaves_other_arrays_alone(tmp_path: Path) -> None:
+    t = np.arange(200) * 1e-3
+    ref = np.where(t > 0.02, 1e-4, 0.0)
+    np.savez(tmp_path / "s.npz", time_s=t, reference_m=ref, gain=np.array([2.0]))
+    m = pred_manifest(tmp_path, 'name = "a"\nfile = "s.npz"')
+    assert predict(m, tmp_path / "out")["experiments"]["a"]["samples"] == 200
+    out = np.genfromtxt(tmp_path / "out" / "a.csv", delimiter=",", names=True)
+    np.testing.assert_array_equal(out["reference_m"], ref)
+
+
 def test_predict_checks_the_output_folder_before_any_work(tmp_path: Path) -> None:
     write(tmp_path / "s.csv", step_trace())
     m = pred_manifest(tmp_path, 'name = "a"\nfile = "s.csv"')

@@ -24,7 +24,8 @@ diagnosis keys::
 Each trace file (CSV, ``.npz`` or ``.mat``) has the columns ``time_s`` and ``reference_m``
 and optionally ``disturbance_v`` (known command disturbance, added after the controller's
 saturation), ``disturbance_n`` (known force on the table) and ``position_m`` (a measurement
-to compare with); any other column is an error.
+to compare with); any other CSV column is an error (a misspelt disturbance would otherwise
+be left out).
 
 Checks, all before any simulation and before anything is written (a :class:`PredictError`
 naming the manifest key or the file, line and column):

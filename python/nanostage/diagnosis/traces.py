@@ -13,7 +13,8 @@ CSV
     (optional BOM). Blank lines and lines starting with ``#`` are skipped (before or after
     the header), so metadata can be kept in comments. Line numbers in errors are physical
     line numbers of the file. Extra columns are ignored (the trace of ``nanostage
-    predict``, :func:`read_prediction_trace`, rejects them instead). A file that is not
+    predict``, :func:`read_prediction_trace`, rejects them instead: it has no column a
+    diagnosis trace could leave unread). A file that is not
     UTF-8 is an error naming the byte offset of the first undecodable byte.
 ``.npz``
     One 1-D array per column (``numpy.savez``); ``(n, 1)`` and ``(1, n)`` arrays are
@@ -71,6 +72,7 @@ from __future__ import annotations
 
 import codecs
 import csv
+import dataclasses
 import difflib
 import math
 import zipfile
@@ -307,6 +309,12 @@ class _Schema:
     @property
     def columns(self) -> tuple[str, ...]:
         return self.required + self.optional
+
+
+def _named_arrays(schema: _Schema) -> _Schema:
+    """The schema for ``.npz``/``.mat`` files: other named arrays (a MATLAB file's gains,
+    say) are not columns and are left alone."""
+    return dataclasses.replace(schema, ignore_extra=True)
 
 
 _TRACE: Final = _Schema(REQUIRED_COLUMNS, OPTIONAL_COLUMNS, True)
@@ -737,7 +745,7 @@ def _read_npz(
             "not an .npz archive (a single array); save the columns with numpy.savez", file=file
         )
     with z:
-        selected = _select(file, list(z.files), names, columns, schema)
+        selected = _select(file, list(z.files), names, columns, _named_arrays(schema))
         zf = z.zip
         for f in selected.values():
             _check_elements(file, f, None if zf is None else _npy_elements(zf, f), limits)
@@ -760,7 +768,7 @@ def _read_mat(
         raise TraceError("reading .mat files needs scipy: pip install scipy", file=file) from exc
     try:
         info = whosmat(str(path))
-        selected = _select(file, [v[0] for v in info], names, columns, schema)
+        selected = _select(file, [v[0] for v in info], names, columns, _named_arrays(schema))
         shapes = {v[0]: v[1] for v in info}
         for f in selected.values():
             _check_elements(file, f, math.prod(shapes[f]), limits)
@@ -1095,8 +1103,9 @@ def read_prediction_trace(
     """Read and validate the input trace of ``nanostage predict``.
 
     The columns are :data:`PREDICTION_COLUMNS`: ``time_s`` and ``reference_m`` required,
-    ``disturbance_v``, ``disturbance_n`` and ``position_m`` optional; any other column is
-    an error (with a "did you mean"), so a misspelt disturbance is not silently left out.
+    ``disturbance_v``, ``disturbance_n`` and ``position_m`` optional; any other CSV column
+    is an error (with a "did you mean"), so a misspelt disturbance is not silently left out
+    (other arrays of an ``.npz``/``.mat`` file are left alone).
     Every check of :func:`read_trace` applies (format, size limits, UTF-8, cells, finite
     values, time strictly increasing and without gaps, at least :data:`MIN_SAMPLES`
     samples, millimetre checks against ``travel_m``) except that the reference may stay
