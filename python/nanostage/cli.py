@@ -23,7 +23,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import Final, NoReturn, cast
+from typing import Any, Final, NoReturn, cast
 
 from . import iso230_2
 from ._core import SimulationError
@@ -161,10 +161,56 @@ def _reproduce(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _add_input_options(p: argparse.ArgumentParser) -> None:
+    """Options of the commands that read a manifest's trace files (docs/diagnosis.md)."""
+    p.add_argument(
+        "--trace-root",
+        default=None,
+        metavar="DIR",
+        help="allow files named in the manifest to lie inside DIR (default: only inside the "
+        "manifest's folder, after symbolic links)",
+    )
+    p.add_argument(
+        "--max-trace-samples",
+        type=_integer,
+        default=None,
+        metavar="N",
+        help="most samples per trace file (default 2000000; the file-size limit is 512 "
+        "bytes per sample)",
+    )
+    p.add_argument(
+        "--max-total-samples",
+        type=_integer,
+        default=None,
+        metavar="N",
+        help="most samples of all the experiments together (default: diagnose 200000, "
+        "predict 10000000)",
+    )
+
+
+def _trace_limits(args: argparse.Namespace, *, prediction: bool = False) -> Any:
+    """The :class:`~nanostage.diagnosis.traces.TraceLimits` of the options above."""
+    from .diagnosis.traces import PREDICTION_MAX_SAMPLES_TOTAL, TraceLimits
+
+    given = {
+        k: v
+        for k, v in (
+            ("max_samples_per_trace", args.max_trace_samples),
+            ("max_samples_total", args.max_total_samples),
+        )
+        if v is not None
+    }
+    if prediction:
+        given.setdefault("max_samples_total", PREDICTION_MAX_SAMPLES_TOTAL)
+    return TraceLimits(**given)
+
+
 def _diagnose(args: argparse.Namespace) -> int:
+    from .diagnosis.manifest import load_manifest
     from .diagnosis.run import diagnose
 
-    d = diagnose(args.manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
+    manifest = load_manifest(args.manifest, trace_root=args.trace_root, limits=_trace_limits(args))
+    d = diagnose(manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
     r = d.report
     before, after = r["gap_before"]["total_rms_m"], r["gap_after"]["total_rms_m"]
     print(
@@ -215,11 +261,16 @@ def _predict(args: argparse.Namespace) -> int:
     from .predict import predict
 
     check_output_dir(args.out)
-    s = predict(args.manifest, args.out)
+    s = predict(
+        args.manifest,
+        args.out,
+        trace_root=args.trace_root,
+        limits=_trace_limits(args, prediction=True),
+    )
     for name, e in s["experiments"].items():
         extra = (
             f", position error {e['position_relative_error']:.3%} against the measurement"
-            if "position_relative_error" in e
+            if e.get("position_relative_error") is not None
             else ""
         )
         print(f"{name}: {e['samples']} samples → {e['file']}{extra}")
@@ -365,6 +416,7 @@ def _build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--out", default="diagnosis", help="output directory (default: diagnosis)")
     dg.add_argument("--no-plot", action="store_true", help="skip the figures")
     dg.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    _add_input_options(dg)
     dg.set_defaults(func=_diagnose)
     bm = sub.add_parser(
         "diagnose-benchmark", help="blind check of the diagnosis on synthetic hidden effects"
@@ -382,6 +434,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pr = sub.add_parser("predict", help="simulate an identified model for given inputs")
     pr.add_argument("manifest", help="TOML manifest (see nanostage.predict)")
     pr.add_argument("--out", default="prediction", help="output directory")
+    _add_input_options(pr)
     pr.set_defaults(func=_predict)
     em = sub.add_parser("emps", help="the EMPS real-data study (yardstick, identification)")
     em.add_argument("--out", default="emps", help="output directory")
