@@ -209,6 +209,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     from .diagnosis.manifest import load_manifest
     from .diagnosis.run import diagnose
 
+    check_output_dir(args.out)
     manifest = load_manifest(args.manifest, trace_root=args.trace_root, limits=_trace_limits(args))
     d = diagnose(manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
     r = d.report
@@ -300,6 +301,7 @@ def _tune(args: argparse.Namespace) -> int:
     from .paper_campaigns import check_threads
     from .tune import (
         Objective,
+        check_search,
         markdown,
         tune_table1,
         tuning_cycle,
@@ -325,6 +327,7 @@ def _tune(args: argparse.Namespace) -> int:
     for step in steps:
         with_friction_spread(presets.seed(step), args.spread)
         tuning_cycle(step)
+    check_search(args.trials, args.seed, args.popsize, args.maxiter)
     if args.eval_trials is not None:
         _int_arg("eval_trials", args.eval_trials, 1, MAX_TRIALS)
     check_threads(args.threads)
@@ -491,6 +494,7 @@ def _build_parser() -> argparse.ArgumentParser:
             "overshoot_max_m": "--overshoot-max-um",
             "band_counts": "--band-counts",
             "level_spread": "--spread",
+            "stochastic.level_spread": "--spread",
             "n_trials": "--trials",
             "eval_trials": "--eval-trials",
             "popsize": "--popsize",

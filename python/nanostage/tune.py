@@ -74,6 +74,7 @@ __all__ = [
     "Objective",
     "RobustMetrics",
     "TuneResult",
+    "check_search",
     "evaluate_gains",
     "pareto_front",
     "tune",
@@ -701,6 +702,22 @@ def pareto_front(
 # --------------------------------------------------------------------------------------------
 
 
+def check_search(n_trials: int, seed: int, popsize: int, maxiter: int) -> tuple[int, int, int, int]:
+    """Check the search settings of :func:`tune` (before any work); returns them as ints.
+
+    Raises
+    ------
+    ConfigError
+        A setting outside its range (see :func:`tune`).
+    """
+    return (
+        _int_arg("n_trials", n_trials, 1, 100_000),
+        _int_arg("seed", seed, 0, 2**32 - 1),
+        _int_arg("popsize", popsize, 4, 100),
+        _int_arg("maxiter", maxiter, 1, 10_000),
+    )
+
+
 def tune(
     system: System,
     cycle: Cycle,
@@ -772,13 +789,10 @@ def tune(
         raise TypeError(f"space must be a GainSpace, not {type(space).__name__}")
     ctl = _fpga(system)
     space.check_format(ctl)
-    n_trials = _int_arg("n_trials", n_trials, 1, 100_000)
-    seed = _int_arg("seed", seed, 0, 2**32 - 1)
+    n_trials, seed, popsize, maxiter = check_search(n_trials, seed, popsize, maxiter)
     cseed = (
         seed if campaign_seed is None else _int_arg("campaign_seed", campaign_seed, 0, 2**64 - 1)
     )
-    popsize = _int_arg("popsize", popsize, 4, 100)
-    maxiter = _int_arg("maxiter", maxiter, 1, 10_000)
     tol_v = _finite_nonneg("tol", tol)
     if tol_v > 1.0:
         raise _bad("tol", tol, "a number in [0, 1]")
