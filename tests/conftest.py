@@ -7,15 +7,34 @@ import sys
 from pathlib import Path
 
 from hypothesis import HealthCheck, settings
+from hypothesis.configuration import set_hypothesis_home_dir
+from hypothesis.database import DirectoryBasedExampleDatabase
 
 # The independent reference models live beside the tests.
 sys.path.insert(0, str(Path(__file__).parent))
 
+# Hypothesis's folder (example database, caches) beside the repository, not in whatever
+# folder pytest was started from (an unusable default location is a HypothesisWarning, which
+# the suite turns into an error); no database where the checkout is read-only.
+_HOME = Path(__file__).resolve().parents[1] / ".hypothesis"
+set_hypothesis_home_dir(_HOME)
+_DATABASE = (
+    DirectoryBasedExampleDatabase(_HOME / "examples") if os.access(_HOME.parent, os.W_OK) else None
+)
+
 settings.register_profile(
-    "dev", max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+    "dev",
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    database=_DATABASE,
 )
 settings.register_profile(
-    "ci", max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+    "ci",
+    max_examples=200,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    database=_DATABASE,
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 
