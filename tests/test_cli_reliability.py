@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import nanostage
-from nanostage import emps, emps_study, iso230_2, paper_campaigns, reproduce, tune
+from nanostage import emps, emps_study, iso230_2, output, paper_campaigns, reproduce, tune
 from nanostage.cli import Terminated, main
 from nanostage.diagnosis import benchmark
 from nanostage.diagnosis import run as diagnosis_run
@@ -188,6 +188,31 @@ def test_staged_output_replaces_the_previous_run_or_leaves_it_whole(tmp_path: Pa
         (folder / "shared.txt").write_text("second", encoding="utf-8")
     assert sorted(p.name for p in out.iterdir()) == [RUN_MANIFEST, "shared.txt"]
     assert (out / "shared.txt").read_text(encoding="utf-8") == "second"
+    assert leftovers(tmp_path) == []
+
+
+def test_a_signal_between_the_renames_puts_the_previous_folder_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "out"
+    with staged_output(out, "first") as folder:
+        (folder / "first.txt").write_text("first", encoding="utf-8")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    real_replace = os.replace
+    calls = []
+
+    def replace(src: Any, dst: Any) -> None:
+        calls.append((Path(src).name, Path(dst).name))
+        if len(calls) == 2:  # the new folder into place
+            raise KeyboardInterrupt
+        real_replace(src, dst)
+
+    monkeypatch.setattr(output.os, "replace", replace)
+    with pytest.raises(KeyboardInterrupt), staged_output(out, "second") as folder:
+        (folder / "second.txt").write_text("second", encoding="utf-8")
+    monkeypatch.undo()
+    assert calls[0] == ("out", "previous") and calls[1][1] == "out"
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert leftovers(tmp_path) == []
 
 

@@ -195,10 +195,19 @@ def staged_output(out: str | Path, command: str) -> Iterator[Path]:
         # The folder may have been filled by someone else meanwhile: check again.
         check_output_dir(target)
         old: Path | None = None
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-            os.replace(target, old / "previous")
-        os.replace(tmp, target)
+        try:
+            if target.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+                os.replace(target, old / "previous")
+            os.replace(tmp, target)
+        except BaseException:
+            # A signal (raised as an exception) or an error between the two renames: the
+            # previous folder goes back into place.
+            if old is not None:
+                if (old / "previous").exists() and not target.exists():
+                    os.replace(old / "previous", target)
+                shutil.rmtree(old, ignore_errors=True)
+            raise
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     except BaseException:
