@@ -7,6 +7,7 @@ import numpy.typing as npt
 
 __all__ = [
     "ConfigError",
+    "ConfigTypeError",
     "SimulationError",
     "__version__",
     "campaign_progress",
@@ -35,6 +36,8 @@ class ConfigError(ValueError):
     field: str
     value: str
     expected: str
+
+class ConfigTypeError(ConfigError, TypeError): ...
 
 class SimulationError(RuntimeError):
     t_s: float

@@ -80,6 +80,7 @@ class TrialStatus(IntEnum):
     INTERRUPTED = 5
     NOT_STARTED = 6
     CONFIG = 7
+    TOO_MANY_EVENTS = 8
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -4,7 +4,10 @@ Valid ranges are enforced by the Rust core (one definition, in ``rust/src``): a
 :class:`Plant`, :class:`FpgaPid`, :class:`IntegratorOptions` or :class:`System` raises
 :class:`nanostage.ConfigError` naming the field, the value and the valid range when it is
 constructed, before anything runs. The block dataclasses (:class:`Motor`, ...) are checked
-when they are assembled into a :class:`Plant`.
+when they are assembled into a :class:`Plant`. A value of the wrong type (a string where a
+:class:`Motor` or a float belongs) raises ``ConfigTypeError``, a :class:`nanostage.ConfigError`
+that is also a :class:`TypeError`, naming the field path, the value, its type and the expected
+type, e.g. ``motor = 'abc' (str) is invalid: expected a Motor``.
 """
 
 from __future__ import annotations
@@ -52,7 +55,9 @@ class Fxp:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Motor:
-    """DC motor: armature circuit and rotor."""
+    """DC motor: armature circuit and rotor. ``resistance_ohm`` in [1e-3, 1e3] Ω (1 mΩ is
+    below any winding), ``inductance_h`` in [1e-9, 1] H (1 nH is a millimetre of wire),
+    ``rotor_inertia_kg_m2`` in [1e-12, 1] kg·m² (a hundredth of the smallest micromotor)."""
 
     resistance_ohm: float
     inductance_h: float
@@ -64,7 +69,9 @@ class Motor:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StribeckFriction:
-    """Stribeck torque on the motor shaft, with true stiction up to the static torque."""
+    """Stribeck torque on the motor shaft, with true stiction up to the static torque.
+    ``stribeck_velocity_rad_per_s`` in [1e-3, 1e5] rad/s: far below a milliradian per second
+    the Stribeck drop is a step the stick/slip logic cannot resolve."""
 
     static_torque_nm: float
     coulomb_torque_nm: float
@@ -75,7 +82,7 @@ class StribeckFriction:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Gearhead:
-    """Gearhead: ratio (motor turns per output turn) and efficiency."""
+    """Gearhead: ratio (motor turns per output turn, [1, 1e4]) and efficiency ([1e-3, 1])."""
 
     ratio: float
     efficiency: float
@@ -83,7 +90,8 @@ class Gearhead:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class BallScrew:
-    """Ball screw: lead per revolution, efficiency, shaft inertia."""
+    """Ball screw: lead per revolution ([1e-5, 0.1] m), efficiency ([1e-3, 1]), shaft inertia
+    ([0, 1] kg·m², at least 1e-12 in a three-mass drive train)."""
 
     lead_m: float
     efficiency: float
@@ -92,7 +100,7 @@ class BallScrew:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Table:
-    """Moving table: mass and a constant external force opposing +x."""
+    """Moving table: mass ([1e-6, 1e4] kg) and a constant external force opposing +x."""
 
     mass_kg: float
     external_force_n: float = 0.0
@@ -100,7 +108,9 @@ class Table:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DahlFriction:
-    """Dahl friction on the table side: Coulomb force, rest stiffness, shape exponent."""
+    """Dahl friction on the table side: Coulomb force, rest stiffness, shape exponent.
+    ``coulomb_force_n`` in [1e-6, 1e5] N (a micronewton is below any guide's friction),
+    ``stiffness_n_per_m`` in [1e-3, 1e12] N/m."""
 
     coulomb_force_n: float
     stiffness_n_per_m: float
@@ -180,7 +190,8 @@ class ForceDrivePlant:
     """A force-controlled drive moving a lumped mass (EMPS): ``force = gain · command``,
     friction on the table as a static map with true stiction, a constant offset force.
     ``drive_mass_kg`` is the part of the mass on the drive side of a compliant link (it is
-    lumped with ``mass_kg`` when the chain is rigid)."""
+    lumped with ``mass_kg`` when the chain is rigid; at least 1e-6 kg with a link, and
+    ``mass_kg`` at least 1e-6 kg, as :class:`Table`)."""
 
     drive_gain_n_per_v: float
     mass_kg: float
@@ -218,7 +229,14 @@ class OutputStage:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class IntegratorOptions:
-    """RODAS4 options: tolerances, step bounds, event location."""
+    """RODAS4 options: tolerances, step bounds, event location, and the work budget of one
+    control interval (from a sample to the output update, or from there to the next sample):
+    at most ``max_steps`` integrator steps (accepted and rejected, in [10, 1e9]) and
+    ``max_events`` stick/slip events (in [1, 1e9]). A run that needs more, e.g. a friction
+    law switching between stick and slip faster than the model can resolve, ends with
+    :class:`nanostage.SimulationError` naming the time, the state and the cause (a campaign
+    trial: its failure status), so that no configuration can run for ever. The seed axis and
+    the effect library take at most a few hundred steps and about ten events per interval."""
 
     rtol: float = 1e-6
     atol_position_m: float = 1e-11
@@ -226,6 +244,7 @@ class IntegratorOptions:
     h_min_s: float = 1e-14
     h_max_s: float = 1e-3
     max_steps: int = 100_000
+    max_events: int = 10_000
     event_tol_s: float = 1e-11
 
     def __post_init__(self) -> None:

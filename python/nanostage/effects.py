@@ -63,7 +63,9 @@ class StaticFrictionMap:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LuGre:
-    """LuGre: ``ż = v − σ0·|v|·z/g(v)``, ``F = σ0·z + σ1·ż + σ2·v``."""
+    """LuGre: ``ż = v − σ0·|v|·z/g(v)``, ``F = σ0·z + σ1·ż + σ2·v``. ``coulomb_force_n`` in
+    [1e-6, 1e5] N and ``stiffness_n_per_m`` in [1e-3, 1e12] N/m, as for
+    :class:`nanostage.DahlFriction`."""
 
     stiffness_n_per_m: float
     damping_n_s_per_m: float
@@ -76,7 +78,9 @@ class LuGre:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Gms:
     """Generalized Maxwell-slip: parallel elasto-slide elements with Stribeck slip forces
-    (``weights`` sum to 1; element ``i`` slips at ``weights[i]·s(v)``)."""
+    (``weights`` sum to 1; element ``i`` slips at ``weights[i]·s(v)``). ``coulomb_force_n``
+    in [1e-6, 1e5] N and each stiffness in [1e-3, 1e12] N/m, as for
+    :class:`nanostage.DahlFriction`."""
 
     stiffness_n_per_m: tuple[float, ...]
     weights: tuple[float, ...]

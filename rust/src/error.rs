@@ -36,6 +36,17 @@ impl ConfigError {
     }
 }
 
+/// `value` as an error message shows it: as Rust prints it (`0.5`, `1000000`), except that
+/// magnitudes below 1e-4 or from 1e16 up are in exponent form (`1e-30`, not thirty zeros).
+pub fn format_value(value: f64) -> String {
+    let a = value.abs();
+    if value.is_finite() && a != 0.0 && !(1e-4..1e16).contains(&a) {
+        format!("{value:e}")
+    } else {
+        value.to_string()
+    }
+}
+
 /// Check that `value` is finite and inside `[lo, hi]`.
 pub fn check_range(field: &str, value: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
     if value.is_finite() && value >= lo && value <= hi {
@@ -43,7 +54,7 @@ pub fn check_range(field: &str, value: f64, lo: f64, hi: f64) -> Result<(), Conf
     } else {
         Err(ConfigError::new(
             field,
-            value,
+            format_value(value),
             format!("a finite number in [{lo:e}, {hi:e}]"),
         ))
     }
@@ -56,7 +67,7 @@ pub fn check_positive(field: &str, value: f64, hi: f64) -> Result<(), ConfigErro
     } else {
         Err(ConfigError::new(
             field,
-            value,
+            format_value(value),
             format!("a finite number in (0, {hi:e}]"),
         ))
     }
@@ -94,7 +105,8 @@ pub enum SimError {
         /// State vector at the failure.
         state: Vec<f64>,
     },
-    /// More steps than allowed in one control interval.
+    /// More integrator steps (accepted and rejected) than allowed in one control interval
+    /// (see `IntegratorOptions::max_steps`).
     #[error(
         "more than {max_steps} steps in one control interval at t = {t_s} s; state = {state:?}"
     )]
@@ -106,10 +118,40 @@ pub enum SimError {
         /// State vector at the failure.
         state: Vec<f64>,
     },
+    /// More stick/slip events than allowed in one control interval: the mode logic switches
+    /// faster than the model can resolve (see `IntegratorOptions::max_events`).
+    #[error(
+        "more than {max_events} stick/slip events in one control interval at t = {t_s} s \
+         (the friction switches faster than the model can resolve); state = {state:?}"
+    )]
+    TooManyEvents {
+        /// Time of the failure, s.
+        t_s: f64,
+        /// The limit that was hit.
+        max_events: usize,
+        /// State vector at the failure.
+        state: Vec<f64>,
+    },
     /// The simulation was interrupted from outside (Ctrl-C).
     #[error("interrupted at t = {t_s} s")]
     Interrupted {
         /// Time of the interruption, s.
         t_s: f64,
     },
+}
+
+impl SimError {
+    /// Simulated time of the failure (NaN for a configuration error) and the state there
+    /// (empty when not known).
+    pub fn time_and_state(&self) -> (f64, Vec<f64>) {
+        match self {
+            Self::StepSizeTooSmall { t_s, state, .. }
+            | Self::SingularMatrix { t_s, state }
+            | Self::NonFinite { t_s, state }
+            | Self::TooManySteps { t_s, state, .. }
+            | Self::TooManyEvents { t_s, state, .. } => (*t_s, state.clone()),
+            Self::Interrupted { t_s } => (*t_s, Vec::new()),
+            Self::Config(_) => (f64::NAN, Vec::new()),
+        }
+    }
 }

@@ -1,5 +1,11 @@
 //! Bindings only: extract the Python dataclasses into core structs, release the GIL while
 //! computing, hand the results back as numpy arrays. No physics here.
+//!
+//! A value of the wrong Python type anywhere in a configuration is a `ConfigTypeError` (a
+//! `ConfigError` and a `TypeError`) naming its field path, the value, its type and the
+//! expected type ([`extract_config`]). Long calls poll for Ctrl-C while they run without the
+//! GIL ([`SignalPoll`], [`simulate_system_batch`]): SIGINT's `KeyboardInterrupt` stops them
+//! within a fraction of a second and is what the call raises.
 #![allow(missing_docs)]
 
 use crate::control::CascadeConfig;
@@ -14,18 +20,21 @@ use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Stats};
 use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
 use crate::sim::{
-    run_campaign, run_drive_open_loop, run_extended, run_open_loop, Campaign, ControllerKind,
-    ExtendedConfig, Interferometer, KnownInputs, Sensors, SpreadDistribution, StochasticFriction,
-    Trace,
+    run_campaign, run_drive_open_loop_polled, run_extended, run_extended_polled,
+    run_open_loop_polled, Campaign, ControllerKind, ExtendedConfig, Interferometer, KnownInputs,
+    Sensors, SpreadDistribution, StochasticFriction, Trace,
 };
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::create_exception;
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyAttributeError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyList, PyTuple, PyType};
+use pyo3::Borrowed;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
 
 create_exception!(
     _core,
@@ -52,14 +61,10 @@ fn config_err(e: CoreConfigError) -> PyErr {
 }
 
 fn sim_err(e: SimError) -> PyErr {
-    let (t, state) = match &e {
-        SimError::Config(c) => return config_err(c.clone()),
-        SimError::StepSizeTooSmall { t_s, state, .. }
-        | SimError::SingularMatrix { t_s, state }
-        | SimError::NonFinite { t_s, state }
-        | SimError::TooManySteps { t_s, state, .. } => (*t_s, state.clone()),
-        SimError::Interrupted { t_s } => (*t_s, Vec::new()),
-    };
+    if let SimError::Config(c) = &e {
+        return config_err(c.clone());
+    }
+    let (t, state) = e.time_and_state();
     Python::attach(|py| {
         let err = SimulationError::new_err(e.to_string());
         let v = err.value(py);
@@ -67,6 +72,259 @@ fn sim_err(e: SimError) -> PyErr {
         let _ = v.setattr("state", state);
         err
     })
+}
+
+/// The `ConfigTypeError` class: a `ConfigError` that is also a `TypeError` (a value of the
+/// wrong Python type), created once per interpreter.
+static CONFIG_TYPE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+fn config_type_error_class(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    CONFIG_TYPE_ERROR
+        .get_or_try_init(py, || {
+            let attrs = PyDict::new(py);
+            attrs.set_item("__module__", "nanostage._core")?;
+            attrs.set_item(
+                "__doc__",
+                "A configuration value of the wrong type (names the field path, the value, its \
+                 type and the expected type); a ConfigError and a TypeError.",
+            )?;
+            let bases = PyTuple::new(
+                py,
+                [py.get_type::<ConfigError>(), py.get_type::<PyTypeError>()],
+            )?;
+            let class = py
+                .get_type::<PyType>()
+                .call1(("ConfigTypeError", bases, attrs))?
+                .cast_into::<PyType>()?;
+            Ok::<_, PyErr>(class.unbind())
+        })
+        .map(|c| c.bind(py))
+}
+
+/// `configuration` extracted as `T`. A value of the wrong type anywhere in it (a string or
+/// `None` where the core expects a `Motor`, a float, ...) raises `ConfigTypeError` naming the
+/// field path (`prefix` + the fields the extraction went through; `arg` when the object
+/// itself is wrong), the value, its type and the expected type, e.g.
+/// `plant.motor = 'abc' (str) is invalid: expected a Motor`.
+fn extract_config<'py, T>(
+    configuration: &Bound<'py, PyAny>,
+    arg: &str,
+    prefix: &str,
+    expected: &str,
+) -> PyResult<T>
+where
+    T: for<'a> FromPyObject<'a, 'py>,
+{
+    configuration.extract::<T>().map_err(|e| {
+        let e: PyErr = e.into();
+        type_error(configuration, arg, prefix, expected, e)
+    })
+}
+
+/// The `ConfigTypeError` of a failed extraction `err` of `root` (see [`extract_config`]):
+/// the derived extractions wrap an error in a field as "failed to extract field S.f" with the
+/// inner error as its cause, so the cause chain gives the field path; walking `root` along it
+/// gives the value, and the dataclass annotation of its field the expected type.
+fn type_error(
+    root: &Bound<'_, PyAny>,
+    arg: &str,
+    prefix: &str,
+    expected: &str,
+    err: PyErr,
+) -> PyErr {
+    let py = root.py();
+    let mut names: Vec<String> = Vec::new();
+    let mut cur = err;
+    loop {
+        let msg = cur.value(py).to_string();
+        let Some(field) = msg.strip_prefix("failed to extract field ") else {
+            break;
+        };
+        names.push(field.rsplit('.').next().unwrap_or(field).to_owned());
+        match cur.cause(py) {
+            Some(c) => cur = c,
+            None => break,
+        }
+    }
+    // Walk the object along the path as far as it goes.
+    let mut value = root.clone();
+    let mut parent: Option<(Bound<'_, PyAny>, &str)> = None;
+    let mut walked: Vec<&str> = Vec::new();
+    for name in &names {
+        match value.getattr(name.as_str()) {
+            Ok(v) => {
+                parent = Some((value, name.as_str()));
+                value = v;
+                walked.push(name.as_str());
+            }
+            Err(_) => break,
+        }
+    }
+    let field = if walked.is_empty() {
+        arg.to_owned()
+    } else {
+        format!("{prefix}{}", walked.join("."))
+    };
+    let mut want = match &parent {
+        Some((p, name)) => annotation(p, name).unwrap_or_else(|| "another type".to_owned()),
+        None => expected.to_owned(),
+    };
+    // Say why when the innermost error is not about the type (e.g. a negative count).
+    let inner = cur.value(py).to_string();
+    let about_type =
+        cur.is_instance_of::<PyAttributeError>(py) || cur.is_instance_of::<PyTypeError>(py);
+    if !about_type && !inner.is_empty() {
+        want = format!("{want} ({})", inner.lines().next().unwrap_or(&inner));
+    }
+    let mut shown = value
+        .repr()
+        .map_or_else(|_| "<unprintable>".to_owned(), |r| r.to_string());
+    if shown.chars().count() > 80 {
+        shown = shown.chars().take(77).collect::<String>() + "...";
+    }
+    let type_name = value
+        .get_type()
+        .name()
+        .map_or_else(|_| "?".to_owned(), |n| n.to_string());
+    let shown = format!("{shown} ({type_name})");
+    let message = format!("{field} = {shown} is invalid: expected {want}");
+    let made = config_type_error_class(py).and_then(|class| {
+        let err = PyErr::from_type(class.clone(), message.clone());
+        let v = err.value(py);
+        v.setattr("field", field.clone())?;
+        v.setattr("value", shown.clone())?;
+        v.setattr("expected", want.clone())?;
+        Ok(err)
+    });
+    made.unwrap_or_else(|e| e)
+}
+
+/// The expected type of field `name` of the dataclass `parent`, from its annotation:
+/// "a Motor", "a float", "one of Plant, ForceDrivePlant".
+fn annotation(parent: &Bound<'_, PyAny>, name: &str) -> Option<String> {
+    let py = parent.py();
+    let fields = py
+        .import("dataclasses")
+        .ok()?
+        .call_method1("fields", (parent,))
+        .ok()?;
+    for f in fields.try_iter().ok()? {
+        let f = f.ok()?;
+        if f.getattr("name").ok()?.extract::<String>().ok()? != name {
+            continue;
+        }
+        let t = f.getattr("type").ok()?;
+        let text = match t.extract::<String>() {
+            Ok(s) => s,
+            Err(_) => t
+                .getattr("__name__")
+                .and_then(|n| n.extract::<String>())
+                .or_else(|_| t.str().map(|s| s.to_string()))
+                .ok()?,
+        };
+        let parts: Vec<&str> = text.split('|').map(str::trim).collect();
+        return Some(if parts.len() == 1 {
+            let article = if text.starts_with(['A', 'E', 'I', 'O', 'U', 'a', 'e', 'i', 'o', 'u']) {
+                "an"
+            } else {
+                "a"
+            };
+            format!("{article} {text}")
+        } else {
+            format!("one of {}", parts.join(", "))
+        });
+    }
+    None
+}
+
+/// An enum of configuration classes extracted by the Python class name when it is one of
+/// its variants' (so that an error inside keeps its field path), else as the first variant
+/// that extracts (duck typing); a `TypeError` when none does.
+macro_rules! config_enum {
+    ($name:ident: $($variant:ident($ty:ty) = $class:literal),+ $(,)?) => {
+        impl<'a, 'py> FromPyObject<'a, 'py> for $name {
+            type Error = PyErr;
+
+            fn extract(obj: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+                let class = obj.get_type().name()?.to_string();
+                $(
+                    if class == $class {
+                        return obj.extract::<$ty>().map(Self::$variant);
+                    }
+                )+
+                $(
+                    if let Ok(v) = obj.extract::<$ty>() {
+                        return Ok(Self::$variant(v));
+                    }
+                )+
+                Err(PyTypeError::new_err(concat!("expected one of" $(, " ", $class)+)))
+            }
+        }
+    };
+}
+
+/// Wall-clock time between two looks for pending signals during a long call (the look takes
+/// the GIL back; it never changes a result).
+const SIGNAL_POLL_INTERVAL: Duration = Duration::from_millis(50);
+
+/// Whether the calling thread is Python's main thread (the only one that runs signal
+/// handlers).
+fn is_main_thread(py: Python<'_>) -> bool {
+    let check = || -> PyResult<bool> {
+        let threading = py.import("threading")?;
+        let current = threading.call_method0("current_thread")?;
+        Ok(current.is(&threading.call_method0("main_thread")?))
+    };
+    check().unwrap_or(false)
+}
+
+/// Ctrl-C for a run computed without the GIL on the calling thread: the run asks
+/// [`Self::poll`] every few control samples; at most every [`SIGNAL_POLL_INTERVAL`] the poll
+/// takes the GIL back and runs Python's signal handlers (on the main thread only; elsewhere
+/// it stops looking). A handler that raises (SIGINT's `KeyboardInterrupt`) stops the run, and
+/// [`Self::finish`] raises that exception instead of the run's result.
+struct SignalPoll {
+    last: Instant,
+    main_thread: Option<bool>,
+    raised: Option<PyErr>,
+}
+
+impl SignalPoll {
+    fn new() -> Self {
+        Self {
+            last: Instant::now(),
+            main_thread: None,
+            raised: None,
+        }
+    }
+
+    /// Whether the run should stop.
+    fn poll(&mut self) -> bool {
+        if self.raised.is_some() {
+            return true;
+        }
+        if self.main_thread == Some(false) || self.last.elapsed() < SIGNAL_POLL_INTERVAL {
+            return false;
+        }
+        self.last = Instant::now();
+        Python::attach(|py| {
+            let main = *self.main_thread.get_or_insert_with(|| is_main_thread(py));
+            if main {
+                if let Err(e) = py.check_signals() {
+                    self.raised = Some(e);
+                }
+            }
+        });
+        self.raised.is_some()
+    }
+
+    /// The run's result, or the exception a signal handler raised during it.
+    fn finish<T>(self, result: Result<T, SimError>) -> PyResult<T> {
+        match self.raised {
+            Some(e) => Err(e),
+            None => result.map_err(sim_err),
+        }
+    }
 }
 
 #[derive(FromPyObject)]
@@ -291,6 +549,7 @@ struct PyIntegrator {
     h_min_s: f64,
     h_max_s: f64,
     max_steps: usize,
+    max_events: usize,
     event_tol_s: f64,
 }
 
@@ -303,6 +562,7 @@ impl From<&PyIntegrator> for IntegratorOptions {
             h_min_s: o.h_min_s,
             h_max_s: o.h_max_s,
             max_steps: o.max_steps,
+            max_events: o.max_events,
             event_tol_s: o.event_tol_s,
         }
     }
@@ -372,12 +632,14 @@ struct PyGms {
     viscous_n_s_per_m: f64,
 }
 
-#[derive(FromPyObject)]
 enum PyTableFriction {
     Gms(PyGms),
     LuGre(PyLuGre),
     Static(PyStaticMap),
 }
+
+config_enum!(PyTableFriction: Gms(PyGms) = "Gms", LuGre(PyLuGre) = "LuGre",
+    Static(PyStaticMap) = "StaticFrictionMap");
 
 impl PyTableFriction {
     fn to_core(&self) -> Result<TableFriction, CoreConfigError> {
@@ -502,11 +764,12 @@ struct PyForcePlant {
     drive_mass_kg: f64,
 }
 
-#[derive(FromPyObject)]
 enum PyAnyPlant {
     Seed(PyPlant),
     Force(PyForcePlant),
 }
+
+config_enum!(PyAnyPlant: Seed(PyPlant) = "Plant", Force(PyForcePlant) = "ForceDrivePlant");
 
 #[derive(FromPyObject)]
 struct PyCascade {
@@ -516,12 +779,13 @@ struct PyCascade {
     saturation_v: f64,
 }
 
-#[derive(FromPyObject)]
 #[allow(clippy::large_enum_variant)] // extracted once per call
 enum PyAnyController {
     Fpga(PyPid),
     Cascade(PyCascade),
 }
+
+config_enum!(PyAnyController: Fpga(PyPid) = "FpgaPid", Cascade(PyCascade) = "CascadeController");
 
 #[derive(FromPyObject)]
 struct PySystem {
@@ -734,43 +998,48 @@ fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
 #[pyo3(signature = (system, reference_m, force_disturbance_n=None, command_disturbance_v=None, seed=0, initial_position_m=0.0))]
 fn simulate_system<'py>(
     py: Python<'py>,
-    system: PySystem,
+    system: &Bound<'py, PyAny>,
     reference_m: PyReadonlyArray1<'py, f64>,
     force_disturbance_n: Option<PyReadonlyArray1<'py, f64>>,
     command_disturbance_v: Option<PyReadonlyArray1<'py, f64>>,
     seed: u64,
     initial_position_m: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let system: PySystem = extract_config(system, "system", "", "a System")?;
     let cfg = build_system(&system, seed, initial_position_m).map_err(config_err)?;
     let reference: Vec<f64> = reference_m.as_array().to_vec();
     let force = optional_series(&force_disturbance_n);
     let command = optional_series(&command_disturbance_v);
-    let tr = py
-        .detach(|| {
-            run_extended(
-                &cfg,
-                &reference,
-                KnownInputs {
-                    force_n: &force,
-                    command_v: &command,
-                },
-                None,
-            )
-        })
-        .map_err(sim_err)?;
-    trace_dict(py, tr)
+    let mut signals = SignalPoll::new();
+    let tr = py.detach(|| {
+        run_extended_polled(
+            &cfg,
+            &reference,
+            KnownInputs {
+                force_n: &force,
+                command_v: &command,
+            },
+            &mut || signals.poll(),
+        )
+    });
+    trace_dict(py, signals.finish(tr)?)
 }
 
 /// Run the closed loops of several `System`s at once, in parallel (rayon, `threads` workers;
 /// 0: rayon's default pool) with the GIL released once for the whole batch; returns the
 /// dicts of [`simulate_system`] in the order given. Every configuration is checked before any
 /// simulation starts; the first failed run (in the order given) raises its error.
+///
+/// Called from the main thread, the calling thread waits for the batch and looks for
+/// pending signals every [`SIGNAL_POLL_INTERVAL`]; a handler that raises (Ctrl-C) sets the
+/// batch's stop flag, which every run polls every few control samples, and the call raises
+/// that exception once the runs have stopped.
 #[pyfunction]
 #[pyo3(signature = (systems, references_m, force_disturbances_n, command_disturbances_v, seeds, initial_positions_m, threads=0))]
 #[allow(clippy::too_many_arguments)]
 fn simulate_system_batch<'py>(
     py: Python<'py>,
-    systems: Vec<PySystem>,
+    systems: Vec<Bound<'py, PyAny>>,
     references_m: Vec<PyReadonlyArray1<'py, f64>>,
     force_disturbances_n: Vec<Option<PyReadonlyArray1<'py, f64>>>,
     command_disturbances_v: Vec<Option<PyReadonlyArray1<'py, f64>>>,
@@ -794,8 +1063,13 @@ fn simulate_system_batch<'py>(
     }
     let mut jobs = Vec::with_capacity(n);
     for i in 0..n {
-        let cfg =
-            build_system(&systems[i], seeds[i], initial_positions_m[i]).map_err(config_err)?;
+        let system: PySystem = extract_config(
+            &systems[i],
+            &format!("systems[{i}]"),
+            &format!("systems[{i}]."),
+            "a System",
+        )?;
+        let cfg = build_system(&system, seeds[i], initial_positions_m[i]).map_err(config_err)?;
         jobs.push((
             cfg,
             references_m[i].as_array().to_vec(),
@@ -803,6 +1077,7 @@ fn simulate_system_batch<'py>(
             optional_series(&command_disturbances_v[i]),
         ));
     }
+    let stop = AtomicBool::new(false);
     let run = || -> Vec<Result<Trace, SimError>> {
         jobs.par_iter()
             .map(|(cfg, r, f, c)| {
@@ -813,15 +1088,58 @@ fn simulate_system_batch<'py>(
                         force_n: f,
                         command_v: c,
                     },
-                    None,
+                    Some(&stop),
                 )
             })
             .collect()
     };
-    let results = py.detach(|| match batch_pool(threads) {
-        Some(pool) => pool.install(run),
-        None => run(),
+    let pool = batch_pool(threads);
+    let watch = is_main_thread(py);
+    let mut raised: Option<PyErr> = None;
+    let results = py.detach(|| {
+        if !watch {
+            return match &pool {
+                Some(pool) => pool.install(run),
+                None => run(),
+            };
+        }
+        // The runs go to the pool as one job; this thread waits for it and looks for pending
+        // signals meanwhile (no thread of its own: a batch is called thousands of times).
+        let mut results = None;
+        let (done, finished) = mpsc::channel();
+        macro_rules! wait_in {
+            ($($in_place_scope:tt)+) => {
+                $($in_place_scope)+(|scope| {
+                    let out = &mut results;
+                    scope.spawn(move |_| {
+                        *out = Some(run());
+                        // Nothing to tell if the receiver is gone.
+                        let _ = done.send(());
+                    });
+                    loop {
+                        match finished.recv_timeout(SIGNAL_POLL_INTERVAL) {
+                            Err(mpsc::RecvTimeoutError::Timeout) if raised.is_none() => {
+                                if let Err(e) = Python::attach(|py| py.check_signals()) {
+                                    stop.store(true, Ordering::Relaxed);
+                                    raised = Some(e);
+                                }
+                            }
+                            Err(mpsc::RecvTimeoutError::Timeout) => {}
+                            Ok(()) | Err(mpsc::RecvTimeoutError::Disconnected) => break,
+                        }
+                    }
+                })
+            };
+        }
+        match &pool {
+            Some(pool) => wait_in!(pool.in_place_scope),
+            None => wait_in!(rayon::in_place_scope),
+        }
+        results.unwrap_or_default()
     });
+    if let Some(e) = raised {
+        return Err(e);
+    }
     let out = PyList::empty(py);
     for r in results {
         out.append(trace_dict(py, r.map_err(sim_err)?)?)?;
@@ -868,17 +1186,20 @@ fn trace_dict(py: Python<'_>, tr: Trace) -> PyResult<Bound<'_, PyDict>> {
 #[pyo3(signature = (system, voltage_v, sample_period_s, force_n=None))]
 fn simulate_system_open_loop<'py>(
     py: Python<'py>,
-    system: PySystem,
+    system: &Bound<'py, PyAny>,
     voltage_v: PyReadonlyArray1<'py, f64>,
     sample_period_s: f64,
     force_n: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let system: PySystem = extract_config(system, "system", "", "a System")?;
     let cfg = build_system(&system, 0, 0.0).map_err(config_err)?;
     let u: Vec<f64> = voltage_v.as_array().to_vec();
     let f = optional_series(&force_n);
-    let tr = py
-        .detach(|| run_drive_open_loop(&cfg, &u, &f, sample_period_s))
-        .map_err(sim_err)?;
+    let mut signals = SignalPoll::new();
+    let tr = py.detach(|| {
+        run_drive_open_loop_polled(&cfg, &u, &f, sample_period_s, &mut || signals.poll())
+    });
+    let tr = signals.finish(tr)?;
     let d = PyDict::new(py);
     d.set_item("stats", stats_dict(py, &tr.stats)?)?;
     put_arrays!(d, py, tr;
@@ -887,24 +1208,34 @@ fn simulate_system_open_loop<'py>(
     Ok(d)
 }
 
-#[derive(FromPyObject)]
 enum PyAnyFriction {
     Table(PyTableFriction),
     Dahl(PyDahl),
 }
+
+config_enum!(PyAnyFriction: Table(PyTableFriction) = "Gms", Table(PyTableFriction) = "LuGre",
+    Table(PyTableFriction) = "StaticFrictionMap", Dahl(PyDahl) = "DahlFriction");
 
 /// The force of one friction component along a prescribed motion.
 #[pyfunction]
 #[pyo3(signature = (friction, time_s, position_m, velocity_m_per_s, integrator, terms=Vec::new()))]
 fn friction_response<'py>(
     py: Python<'py>,
-    friction: PyAnyFriction,
+    friction: &Bound<'py, PyAny>,
     time_s: PyReadonlyArray1<'py, f64>,
     position_m: PyReadonlyArray1<'py, f64>,
     velocity_m_per_s: PyReadonlyArray1<'py, f64>,
-    integrator: PyIntegrator,
+    integrator: &Bound<'py, PyAny>,
     terms: Vec<(f64, f64, f64)>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let friction: PyAnyFriction = extract_config(
+        friction,
+        "friction",
+        "",
+        "one of DahlFriction, StaticFrictionMap, LuGre, Gms",
+    )?;
+    let integrator: PyIntegrator =
+        extract_config(integrator, "integrator", "", "an IntegratorOptions")?;
     let tf = match &friction {
         PyAnyFriction::Table(t) => t.to_core().map_err(config_err)?,
         PyAnyFriction::Dahl(d) => TableFriction::Dahl(DahlFriction {
@@ -921,15 +1252,18 @@ fn friction_response<'py>(
         position_m.as_array().to_vec(),
         velocity_m_per_s.as_array().to_vec(),
     );
-    let f = py
-        .detach(|| crate::drive::friction_response(&tf, &m, &t, &x, &v, &opts))
-        .map_err(sim_err)?;
+    let mut signals = SignalPoll::new();
+    let f = py.detach(|| {
+        crate::drive::friction_response_polled(&tf, &m, &t, &x, &v, &opts, &mut || signals.poll())
+    });
+    let f = signals.finish(f)?;
     Ok(f.into_pyarray(py).into_any())
 }
 
 /// Validate a whole `System` (raises ConfigError naming the field).
 #[pyfunction]
-fn validate_system(system: PySystem) -> PyResult<()> {
+fn validate_system(system: &Bound<'_, PyAny>) -> PyResult<()> {
+    let system: PySystem = extract_config(system, "system", "", "a System")?;
     build_system(&system, 0, 0.0)
         .map(|_| ())
         .map_err(config_err)
@@ -939,17 +1273,21 @@ fn validate_system(system: PySystem) -> PyResult<()> {
 #[pyfunction]
 fn simulate_open_loop<'py>(
     py: Python<'py>,
-    plant: PyPlant,
-    integrator: PyIntegrator,
+    plant: &Bound<'py, PyAny>,
+    integrator: &Bound<'py, PyAny>,
     voltage_v: PyReadonlyArray1<'py, f64>,
     sample_period_s: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let plant: PyPlant = extract_config(plant, "plant", "", "a Plant")?;
+    let integrator: PyIntegrator =
+        extract_config(integrator, "integrator", "", "an IntegratorOptions")?;
     let axis = AxisParams::from(&plant);
     let opts = IntegratorOptions::from(&integrator);
     let u: Vec<f64> = voltage_v.as_array().to_vec();
+    let mut signals = SignalPoll::new();
     let tr = py
-        .detach(|| run_open_loop(&axis, &opts, &u, sample_period_s))
-        .map_err(sim_err)?;
+        .detach(|| run_open_loop_polled(&axis, &opts, &u, sample_period_s, &mut || signals.poll()));
+    let tr = signals.finish(tr)?;
     let d = PyDict::new(py);
     d.set_item("stats", stats_dict(py, &tr.stats)?)?;
     d.set_item("time_s", tr.time_s.into_pyarray(py))?;
@@ -965,10 +1303,11 @@ fn simulate_open_loop<'py>(
 #[pyfunction]
 fn pid_run<'py>(
     py: Python<'py>,
-    controller: PyPid,
+    controller: &Bound<'py, PyAny>,
     reference_counts: PyReadonlyArray1<'py, i64>,
     measured_counts: PyReadonlyArray1<'py, i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let controller: PyPid = extract_config(controller, "controller", "", "an FpgaPid")?;
     let cfg = controller.to_core().map_err(config_err)?;
     let r = reference_counts.as_array();
     let y = measured_counts.as_array();
@@ -1004,10 +1343,12 @@ fn pid_run<'py>(
 #[pyfunction]
 fn cascade_run<'py>(
     py: Python<'py>,
-    controller: PyCascade,
+    controller: &Bound<'py, PyAny>,
     reference_m: PyReadonlyArray1<'py, f64>,
     position_m: PyReadonlyArray1<'py, f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let controller: PyCascade =
+        extract_config(controller, "controller", "", "a CascadeController")?;
     let cfg = CascadeConfig {
         kp_per_s: controller.kp_per_s,
         kv_v_s_per_m: controller.kv_v_s_per_m,
@@ -1038,8 +1379,9 @@ fn fxp_requantize<'py>(
     py: Python<'py>,
     raw: PyReadonlyArray1<'py, i64>,
     frac_in: i32,
-    fmt: PyFxp,
+    fmt: &Bound<'py, PyAny>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let fmt: PyFxp = extract_config(fmt, "fmt", "", "an Fxp")?;
     let f = fmt.to_core("fmt").map_err(config_err)?;
     if !(-64..=128).contains(&frac_in) {
         return Err(config_err(CoreConfigError::new(
@@ -1201,6 +1543,7 @@ fn seed_values(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         ("event_tol_s", o.event_tol_s),
     ])?;
     integ.set_item("max_steps", o.max_steps)?;
+    integ.set_item("max_events", o.max_events)?;
     d.set_item("integrator", integ)?;
     let gains = PyDict::new(py);
     for step in [100e-6, 500e-6, 1e-3, 10e-3] {
@@ -1249,7 +1592,7 @@ fn campaign_progress() -> usize {
 #[pyo3(signature = (system, reference_m, measure_index, trial_start, trial_stop, seed, threads))]
 fn campaign_run<'py>(
     py: Python<'py>,
-    system: PySystem,
+    system: &Bound<'py, PyAny>,
     reference_m: PyReadonlyArray1<'py, f64>,
     measure_index: PyReadonlyArray1<'py, i64>,
     trial_start: u64,
@@ -1257,6 +1600,7 @@ fn campaign_run<'py>(
     seed: u64,
     threads: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let system: PySystem = extract_config(system, "system", "", "a System")?;
     let reference: Vec<f64> = reference_m.as_array().to_vec();
     let x0 = reference.first().copied().unwrap_or(0.0);
     let cfg = build_system(&system, seed, x0).map_err(config_err)?;
@@ -1317,20 +1661,24 @@ fn campaign_run<'py>(
 
 /// Validate a plant (raises ConfigError naming the field).
 #[pyfunction]
-fn validate_plant(plant: PyPlant) -> PyResult<()> {
+fn validate_plant(plant: &Bound<'_, PyAny>) -> PyResult<()> {
+    let plant: PyPlant = extract_config(plant, "plant", "", "a Plant")?;
     AxisParams::from(&plant).validate().map_err(config_err)
 }
 
 /// Validate a controller, including the quantisation of gains and range into their formats.
 #[pyfunction]
-fn validate_controller(controller: PyPid) -> PyResult<()> {
+fn validate_controller(controller: &Bound<'_, PyAny>) -> PyResult<()> {
+    let controller: PyPid = extract_config(controller, "controller", "", "an FpgaPid")?;
     let cfg = controller.to_core().map_err(config_err)?;
     Pid::new(cfg).map(|_| ()).map_err(config_err)
 }
 
 /// Validate integrator options.
 #[pyfunction]
-fn validate_integrator(integrator: PyIntegrator) -> PyResult<()> {
+fn validate_integrator(integrator: &Bound<'_, PyAny>) -> PyResult<()> {
+    let integrator: PyIntegrator =
+        extract_config(integrator, "integrator", "", "an IntegratorOptions")?;
     IntegratorOptions::from(&integrator)
         .validate()
         .map_err(config_err)
@@ -1342,6 +1690,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("ConfigError", py.get_type::<ConfigError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
+    m.add("ConfigTypeError", config_type_error_class(py)?)?;
     m.add_function(wrap_pyfunction!(simulate_system, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_system_batch, m)?)?;
     m.add_function(wrap_pyfunction!(validate_system, m)?)?;

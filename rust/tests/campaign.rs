@@ -99,11 +99,12 @@ fn identical_for_any_thread_count_and_split() {
 fn a_failing_trial_is_its_status_and_the_others_complete() {
     // The friction level differs per trial, so the integrator work per control interval
     // does too: find a step limit that some trials exceed and others do not, from single
-    // runs, then check that the campaign reports exactly those trials as failed.
+    // runs, then check that the campaign reports exactly those trials as failed. (The
+    // trials' needs differ by a step or two, so every limit is tried.)
     let (r, idx) = cycle();
     let n = 10u64;
     let mut chosen = None;
-    for max_steps in (10..400).step_by(5) {
+    for max_steps in 10..400 {
         let mut cfg = stochastic_config();
         cfg.integrator.max_steps = max_steps;
         let expected: Vec<Result<(), SimError>> = (0..n)

@@ -3,6 +3,7 @@
 use nanostage::drive::{AnyDrivePlant, DriveParams, Inputs, Link};
 use nanostage::presets::{seed_axis, seed_closed_loop};
 use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
+use nanostage::SimError;
 
 fn step(n: usize, size_m: f64) -> Vec<f64> {
     (0..n).map(|k| if k < 5 { 0.0 } else { size_m }).collect()
@@ -49,4 +50,48 @@ fn component_plant_holds_still_below_breakaway() {
     let y = plant.state();
     assert_eq!(y[0], 0.0, "motor side moved: {}", y[0]);
     assert_eq!(y[2], 0.0, "table moved: {}", y[2]);
+}
+
+/// The event budget holds on the component plant: a table with a falling (Stribeck) friction
+/// pulled through a soft link by a motor at constant voltage sticks and slips a few times in
+/// each 0.5 s interval, so a budget of two events per interval ends the run with
+/// `TooManyEvents` (time, state), while the default budget lets it complete.
+#[test]
+fn the_event_budget_of_a_control_interval_ends_a_run() {
+    use nanostage::drive::{StaticMap, TableFriction};
+    use nanostage::sim::run_drive_open_loop;
+    let mut ext = ExtendedConfig::from_closed_loop(&seed_closed_loop(1e-4));
+    ext.drive.motor_friction = None;
+    ext.drive.table_friction = TableFriction::Static(StaticMap {
+        static_force_n: 40.0,
+        coulomb_force_n: 20.0,
+        viscous_n_s_per_m: 0.0,
+        stribeck_velocity_m_per_s: 1e-3,
+        stribeck_exponent: 2.0,
+        asymmetry: 0.0,
+        viscous_asymmetry: 0.0,
+        dwell: None,
+        memory_lag_s: None,
+    });
+    ext.drive.n_links = 1;
+    ext.drive.links[0] = Link {
+        stiffness_n_per_m: 1e5,
+        damping_n_s_per_m: 0.0,
+        backlash_m: 0.0,
+    };
+    let u = vec![0.8; 5];
+    let ok = run_drive_open_loop(&ext, &u, &[], 0.5).expect("default budget");
+    assert!(ok.stats.n_events >= 10, "{:?}", ok.stats);
+    ext.integrator.max_events = 2;
+    match run_drive_open_loop(&ext, &u, &[], 0.5) {
+        Err(SimError::TooManyEvents {
+            t_s,
+            max_events: 2,
+            state,
+        }) => {
+            assert!(t_s > 0.0 && t_s < 2.5, "{t_s}");
+            assert!(state.iter().all(|v| v.is_finite()) && !state.is_empty());
+        }
+        other => panic!("expected TooManyEvents, got {:?}", other.map(|t| t.stats)),
+    }
 }

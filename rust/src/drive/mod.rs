@@ -13,4 +13,4 @@ pub use params::{
     Actuator, Amplifier, DriveParams, DwellStatic, Gms, Link, LuGre, Modulation, Side, StaticMap,
     TableFriction, MAX_GMS_ELEMENTS, MAX_MODULATION_TERMS,
 };
-pub use response::friction_response;
+pub use response::{friction_response, friction_response_polled};

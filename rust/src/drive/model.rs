@@ -1286,22 +1286,41 @@ where
     /// (`stuck_closed_form`), as the rigid plant does. After a jump of the command
     /// voltage the first trial step is sized from the error seen after the last jump (as
     /// `model::Plant::advance`); error control itself is unchanged.
+    ///
+    /// The work of one call is bounded as in `model::Plant::advance`: at most `max_steps`
+    /// integrator steps over all segments and `max_events` stick/slip transitions; a state
+    /// that is not finite at the end is [`SimError::NonFinite`].
     pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+        self.advance_polled(inp, t0, t1, &mut || false)
+    }
+
+    /// [`Self::advance`] asking `poll` every `POLL_EVERY_STEPS` integrator steps whether to
+    /// stop (true: [`SimError::Interrupted`]).
+    pub fn advance_polled(
+        &mut self,
+        inp: &Inputs,
+        t0: f64,
+        t1: f64,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<(), SimError> {
         let jump = (inp.u_v - self.u_last).abs();
         self.u_last = inp.u_v;
         let mut at_jump = jump > 0.0;
         let mut t = t0;
         let mut events_here = 0usize;
         let mut t_last_event = f64::NEG_INFINITY;
+        let mut steps = 0usize;
+        let mut events = 0usize;
         loop {
             if events_here < MAX_EVENTS_AT_ONE_INSTANT {
                 self.try_breakaway(inp);
             }
             if self.drive.closed_form_stuck && self.modes[0] == MassMode::Stuck {
                 match self.stuck_closed_form(inp, t, t1) {
-                    None => return Ok(()),
+                    None => return self.check_finite(t1),
                     Some(t_s) => {
                         t = t_s;
+                        self.count_event(&mut events, t)?;
                         let (f, _) = self.drive.holding(
                             &self.y.as_slice()[..self.drive.n_state],
                             inp,
@@ -1328,10 +1347,13 @@ where
                 &self.atol,
                 after_jump,
                 &mut self.jump_error_rate,
+                &mut steps,
+                poll,
             )?;
             match end {
-                SegmentEnd::Reached => return Ok(()),
+                SegmentEnd::Reached => return self.check_finite(t1),
                 SegmentEnd::Event { t_s } => {
+                    self.count_event(&mut events, t_s)?;
                     if t_s - t_last_event <= self.integrator.options.event_tol_s {
                         events_here += 1;
                     } else {
@@ -1340,15 +1362,41 @@ where
                     t_last_event = t_s;
                     t = t_s;
                     self.resolve(inp, events_here >= MAX_EVENTS_AT_ONE_INSTANT);
-                    if !self.y.iter().all(|v| v.is_finite()) {
-                        return Err(SimError::NonFinite {
-                            t_s: t,
-                            state: self.y.iter().copied().collect(),
-                        });
-                    }
+                    self.check_finite(t)?;
                 }
             }
         }
+    }
+
+    /// Count one stick/slip transition at `t_s` against the `max_events` of the interval.
+    fn count_event(&self, events: &mut usize, t_s: f64) -> Result<(), SimError> {
+        *events += 1;
+        let max_events = self.integrator.options.max_events;
+        if *events > max_events {
+            return Err(SimError::TooManyEvents {
+                t_s,
+                max_events,
+                state: self.state_vec(),
+            });
+        }
+        Ok(())
+    }
+
+    /// [`SimError::NonFinite`] at `t_s` unless every state is finite.
+    fn check_finite(&self, t_s: f64) -> Result<(), SimError> {
+        if self.y.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(SimError::NonFinite {
+                t_s,
+                state: self.state_vec(),
+            })
+        }
+    }
+
+    /// The state vector as the integrator's errors report it (padded to `N`).
+    fn state_vec(&self) -> Vec<f64> {
+        self.y.iter().copied().collect()
     }
 }
 
@@ -1399,6 +1447,18 @@ impl AnyDrivePlant {
     /// Advance with the inputs held.
     pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
         each!(self, p => p.advance(inp, t0, t1))
+    }
+
+    /// Advance with the inputs held, asking `poll` whether to stop (see
+    /// [`DrivePlant::advance_polled`]).
+    pub fn advance_polled(
+        &mut self,
+        inp: &Inputs,
+        t0: f64,
+        t1: f64,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<(), SimError> {
+        each!(self, p => p.advance_polled(inp, t0, t1, poll))
     }
 
     /// The model.
@@ -1535,6 +1595,26 @@ mod tests {
         });
         out.push(c);
         out
+    }
+
+    /// A resistance made invalid after validation: the stalled current u/R overflows while the
+    /// mass is stuck (solved in closed form, no integrator step would notice); the state that
+    /// is not finite is an error, not a result.
+    #[test]
+    fn a_state_that_is_not_finite_is_an_error_not_a_result() {
+        let options = IntegratorOptions::default();
+        let mut p = DrivePlant::<4>::new(
+            Drive::new(DriveParams::from_axis(&seed_axis())).unwrap_or_else(|e| panic!("{e}")),
+            options,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        if let Actuator::DcMotor { motor, .. } = &mut p.drive.params.actuator {
+            motor.resistance_ohm = 5e-324;
+        }
+        match p.advance(&Inputs::voltage(0.5), 0.0, 1e-3) {
+            Err(SimError::NonFinite { t_s, .. }) => assert_eq!(t_s, 1e-3),
+            other => panic!("expected NonFinite, got {other:?}"),
+        }
     }
 
     #[test]

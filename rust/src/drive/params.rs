@@ -2,7 +2,10 @@
 //! components on each side, drive electronics, and the effect modifiers. SI units, units in
 //! the names; each field's doc gives its valid range and `validate()` enforces exactly that.
 use crate::error::{check_positive, check_range, ConfigError};
-use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor};
+use crate::model::{
+    AxisParams, BallScrew, DahlFriction, Gearhead, Motor, MIN_COULOMB_FORCE_N, MIN_MASS_KG,
+    MIN_PRESLIDING_STIFFNESS_N_PER_M, MIN_ROTOR_INERTIA_KG_M2,
+};
 
 /// Most Maxwell-slip elements of a GMS model.
 pub const MAX_GMS_ELEMENTS: usize = 8;
@@ -65,11 +68,13 @@ pub struct StaticMap {
 pub struct Gms {
     /// Number of elements, in [1, 8].
     pub n_elements: usize,
-    /// Element stiffnesses k_i, N/m, each in (0, 1e12].
+    /// Element stiffnesses k_i, N/m, each in [1e-3, 1e12] (the lower bound as for
+    /// [`DahlFriction::stiffness_n_per_m`]).
     pub stiffness_n_per_m: [f64; MAX_GMS_ELEMENTS],
     /// Element weights ν_i, each in (0, 1], summing to 1 (± 1e-9).
     pub weights: [f64; MAX_GMS_ELEMENTS],
-    /// Sliding (Coulomb) force Fc, N, in (0, 1e5].
+    /// Sliding (Coulomb) force Fc, N, in [1e-6, 1e5] (the lower bound as for
+    /// [`DahlFriction::coulomb_force_n`]).
     pub coulomb_force_n: f64,
     /// Static force Fs, N, in [Fc, 1e5].
     pub static_force_n: f64,
@@ -83,13 +88,15 @@ pub struct Gms {
 /// `F = σ0·z + σ1·ż + σ2·v`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LuGre {
-    /// Bristle stiffness σ0, N/m, in (0, 1e12].
+    /// Bristle stiffness σ0, N/m, in [1e-3, 1e12] (the lower bound as for
+    /// [`DahlFriction::stiffness_n_per_m`]).
     pub stiffness_n_per_m: f64,
     /// Bristle damping σ1, N·s/m, in [0, 1e7].
     pub damping_n_s_per_m: f64,
     /// Viscous coefficient σ2, N·s/m, in [0, 1e7].
     pub viscous_n_s_per_m: f64,
-    /// Coulomb force Fc, N, in (0, 1e5].
+    /// Coulomb force Fc, N, in [1e-6, 1e5] (the lower bound as for
+    /// [`DahlFriction::coulomb_force_n`]).
     pub coulomb_force_n: f64,
     /// Static force Fs, N, in [Fc, 1e5].
     pub static_force_n: f64,
@@ -168,7 +175,9 @@ pub enum Actuator {
         /// Drive gain, N/V, in (0, 1e5].
         gain_n_per_v: f64,
         /// Mass on the drive side of the first link, kg, in [0, 1e4] (lumped with the table
-        /// when the chain is rigid; must be > 0 with a link).
+        /// when the chain is rigid; at least 1e-6 with a link, as [`Table::mass_kg`]).
+        ///
+        /// [`Table::mass_kg`]: crate::model::Table::mass_kg
         drive_mass_kg: f64,
     },
 }
@@ -191,7 +200,8 @@ pub struct DriveParams {
     pub motor_friction: Option<StaticMap>,
     /// Friction on the table.
     pub table_friction: TableFriction,
-    /// Table (moving) mass, kg, in (0, 1e4].
+    /// Table (moving) mass, kg, in [1e-6, 1e4] (the lower bound as for
+    /// [`Table::mass_kg`](crate::model::Table::mass_kg)).
     pub table_mass_kg: f64,
     /// Constant external force opposing +x, N, in [−1e4, 1e4].
     pub external_force_n: f64,
@@ -274,9 +284,10 @@ impl Gms {
         }
         let mut sum = 0.0;
         for i in 0..self.n_elements {
-            check_positive(
+            check_range(
                 &format!("stiffness_n_per_m[{i}]"),
                 self.stiffness_n_per_m[i],
+                MIN_PRESLIDING_STIFFNESS_N_PER_M,
                 1e12,
             )?;
             check_positive(&format!("weights[{i}]"), self.weights[i], 1.0)?;
@@ -294,16 +305,21 @@ impl Gms {
     }
 }
 
-/// The Stribeck curve of a dynamic model: Fc in (0, 1e5], Fs in [Fc, 1e5], vs in (0, 10].
+/// The Stribeck curve of a dynamic model: Fc in [1e-6, 1e5], Fs in [Fc, 1e5], vs in (0, 10].
 fn check_stribeck_curve(fc: f64, fs: f64, vs: f64) -> Result<(), ConfigError> {
-    check_positive("coulomb_force_n", fc, 1e5)?;
+    check_range("coulomb_force_n", fc, MIN_COULOMB_FORCE_N, 1e5)?;
     check_range("static_force_n", fs, fc, 1e5)?;
     check_positive("stribeck_velocity_m_per_s", vs, 10.0)
 }
 
 impl LuGre {
     fn validate(&self) -> Result<(), ConfigError> {
-        check_positive("stiffness_n_per_m", self.stiffness_n_per_m, 1e12)?;
+        check_range(
+            "stiffness_n_per_m",
+            self.stiffness_n_per_m,
+            MIN_PRESLIDING_STIFFNESS_N_PER_M,
+            1e12,
+        )?;
         check_range("damping_n_s_per_m", self.damping_n_s_per_m, 0.0, 1e7)?;
         check_range("viscous_n_s_per_m", self.viscous_n_s_per_m, 0.0, 1e7)?;
         check_stribeck_curve(
@@ -396,11 +412,14 @@ impl DriveParams {
                 motor.validate().map_err(|e| e.within("motor"))?;
                 gearhead.validate().map_err(|e| e.within("gearhead"))?;
                 screw.validate().map_err(|e| e.within("screw"))?;
-                if self.n_links == 2 && screw.inertia_kg_m2 <= 0.0 {
+                if self.n_links == 2 && screw.inertia_kg_m2 < MIN_ROTOR_INERTIA_KG_M2 {
                     return Err(ConfigError::new(
                         "screw.inertia_kg_m2",
-                        screw.inertia_kg_m2,
-                        "> 0 for a three-mass chain (the screw is a mass of its own)",
+                        crate::error::format_value(screw.inertia_kg_m2),
+                        format!(
+                            "at least {MIN_ROTOR_INERTIA_KG_M2:e} for a three-mass chain (the \
+                             screw is a mass of its own)"
+                        ),
                     ));
                 }
             }
@@ -424,11 +443,11 @@ impl DriveParams {
                         "0 or 1 for a force drive",
                     ));
                 }
-                if self.n_links == 1 && *drive_mass_kg <= 0.0 {
+                if self.n_links == 1 && *drive_mass_kg < MIN_MASS_KG {
                     return Err(ConfigError::new(
                         "drive.drive_mass_kg",
-                        drive_mass_kg,
-                        "> 0 with a compliant link",
+                        crate::error::format_value(*drive_mass_kg),
+                        format!("at least {MIN_MASS_KG:e} with a compliant link"),
                     ));
                 }
             }
@@ -443,7 +462,7 @@ impl DriveParams {
             TableFriction::LuGre(l) => l.validate().map_err(|e| e.within("table_friction"))?,
             TableFriction::Gms(g) => g.validate().map_err(|e| e.within("table_friction"))?,
         }
-        check_positive("table_mass_kg", self.table_mass_kg, 1e4)?;
+        check_range("table_mass_kg", self.table_mass_kg, MIN_MASS_KG, 1e4)?;
         check_range("external_force_n", self.external_force_n, -1e4, 1e4)?;
         if self.n_links > 2 {
             return Err(ConfigError::new("n_links", self.n_links, "0, 1 or 2"));

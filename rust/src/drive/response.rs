@@ -83,6 +83,29 @@ pub fn friction_response(
     velocity_m_per_s: &[f64],
     options: &IntegratorOptions,
 ) -> Result<Vec<f64>, SimError> {
+    friction_response_polled(
+        friction,
+        modulation,
+        time_s,
+        position_m,
+        velocity_m_per_s,
+        options,
+        &mut || false,
+    )
+}
+
+/// [`friction_response`] asking `poll` every `POLL_EVERY_SAMPLES` samples whether to stop
+/// (true: [`SimError::Interrupted`]). A force that is not finite is
+/// [`SimError::NonFinite`].
+pub fn friction_response_polled(
+    friction: &TableFriction,
+    modulation: &Modulation,
+    time_s: &[f64],
+    position_m: &[f64],
+    velocity_m_per_s: &[f64],
+    options: &IntegratorOptions,
+    poll: &mut dyn FnMut() -> bool,
+) -> Result<Vec<f64>, SimError> {
     let n = time_s.len();
     if position_m.len() != n || velocity_m_per_s.len() != n || n == 0 {
         return Err(ConfigError::new(
@@ -145,9 +168,22 @@ pub fn friction_response(
             _ => dynamic,
         }
     };
+    let finite = |f: f64, k: usize, y: &SVector<f64, N>| {
+        if f.is_finite() {
+            Ok(f)
+        } else {
+            Err(SimError::NonFinite {
+                t_s: time_s[k],
+                state: y.iter().copied().collect(),
+            })
+        }
+    };
     let mut out = Vec::with_capacity(n);
-    out.push(force(&y, 0));
+    out.push(finite(force(&y, 0), 0, &y)?);
     for k in 1..n {
+        if k % crate::sim::POLL_EVERY_SAMPLES == 0 && poll() {
+            return Err(SimError::Interrupted { t_s: time_s[k] });
+        }
         let sys = Prescribed {
             friction,
             modulation,
@@ -161,7 +197,7 @@ pub fn friction_response(
             SegmentEnd::Reached | SegmentEnd::Event { .. } => {}
         }
         y[0] = time_s[k];
-        out.push(force(&y, k));
+        out.push(finite(force(&y, k), k, &y)?);
     }
     Ok(out)
 }

@@ -19,7 +19,9 @@ mod rodas;
 pub use arrow::Arrow;
 pub use lu::Lu;
 
-pub use rodas::{IntegratorOptions, Rodas4, SegmentEnd, Stats, JUMP_FIRST_STEP_ERROR};
+pub use rodas::{
+    IntegratorOptions, Rodas4, SegmentEnd, Stats, JUMP_FIRST_STEP_ERROR, POLL_EVERY_STEPS,
+};
 
 use nalgebra::{SMatrix, SVector};
 

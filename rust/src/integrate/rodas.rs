@@ -19,8 +19,19 @@ pub struct IntegratorOptions {
     pub h_min_s: f64,
     /// Largest step, s, in (0, 1].
     pub h_max_s: f64,
-    /// Most steps (accepted + rejected) in one segment, in [10, 1e9].
+    /// Most steps (accepted + rejected) in one control interval, in [10, 1e9]: one call of a
+    /// plant's `advance` (the interval from a sample to the output update, or from there to
+    /// the next sample), over all its segments between stick/slip events. A plain
+    /// [`Rodas4::integrate`] call counts its own steps. Event location's trial steps are not
+    /// counted (at most 200 per event, and events are limited by `max_events`).
     pub max_steps: usize,
+    /// Most stick/slip events (mode changes) in one control interval (one call of a plant's
+    /// `advance`), in [1, 1e9]. Together with `max_steps` this bounds the work of every
+    /// control interval: a friction law that switches faster than the model can resolve
+    /// (chattering between stick and slip at ever shorter intervals) ends the run with
+    /// `SimError::TooManyEvents` instead of running on. The seed axis and the effect library
+    /// take at most about ten events per interval.
+    pub max_events: usize,
     /// Width of the time bracket at which an event is considered located, s, in (0, 1e-6].
     pub event_tol_s: f64,
 }
@@ -34,6 +45,7 @@ impl Default for IntegratorOptions {
             h_min_s: 1e-14,
             h_max_s: 1e-3,
             max_steps: 100_000,
+            max_events: 10_000,
             event_tol_s: 1e-11,
         }
     }
@@ -53,6 +65,13 @@ impl IntegratorOptions {
                 "max_steps",
                 self.max_steps,
                 "an integer in [10, 1e9]",
+            ));
+        }
+        if self.max_events < 1 || self.max_events > 1_000_000_000 {
+            return Err(ConfigError::new(
+                "max_events",
+                self.max_events,
+                "an integer in [1, 1e9]",
             ));
         }
         if self.h_min_s > self.h_max_s {
@@ -153,6 +172,10 @@ impl<const N: usize> Factor<N> for Arrow<N> {
         Arrow::solve(self, b)
     }
 }
+
+/// Steps of a control interval between two polls of its stop request (see
+/// [`Rodas4::integrate_after_jump`]).
+pub const POLL_EVERY_STEPS: usize = 4096;
 
 /// Error norm the first trial step after an input jump aims at
 /// ([`Rodas4::integrate_after_jump`]).
@@ -312,6 +335,12 @@ where
     /// (`error_rate`, per unit of jump · s³) predicts to be [`JUMP_FIRST_STEP_ERROR`], and the
     /// rate is learned again from this call's first accepted step. Without `jump` it is
     /// [`Self::integrate`].
+    ///
+    /// `steps` counts the steps (accepted + rejected) of the control interval this segment
+    /// belongs to: the call adds its own and fails with [`SimError::TooManySteps`] when the
+    /// count would exceed `max_steps`. Every [`POLL_EVERY_STEPS`] steps of the interval it
+    /// asks `poll` whether to stop (true: [`SimError::Interrupted`]), so that even an
+    /// interval with a large budget answers Ctrl-C; the poll does not change the result.
     #[allow(clippy::too_many_arguments)]
     pub fn integrate_after_jump<S: OdeSystem<N>>(
         &mut self,
@@ -322,11 +351,13 @@ where
         atol: &SVector<f64, N>,
         jump: Option<f64>,
         error_rate: &mut Option<f64>,
+        steps: &mut usize,
+        poll: &mut dyn FnMut() -> bool,
     ) -> Result<SegmentEnd, SimError> {
         if let (Some(jump), Some(rate)) = (jump, *error_rate) {
             self.limit_next_step((JUMP_FIRST_STEP_ERROR / (rate * jump)).cbrt());
         }
-        let end = self.integrate(sys, t0, t1, y, atol)?;
+        let end = self.integrate_counted(sys, t0, t1, y, atol, steps, poll)?;
         if let (Some(jump), Some((h, err))) = (jump, self.first_accepted()) {
             let rate = err / (jump * h * h * h);
             if rate.is_finite() && rate > 0.0 {
@@ -337,7 +368,7 @@ where
     }
 
     /// Integrate from `t0` to `t1` (or to the first event), updating `y` in place.
-    /// `atol` is the per-component absolute tolerance.
+    /// `atol` is the per-component absolute tolerance. At most `max_steps` steps.
     pub fn integrate<S: OdeSystem<N>>(
         &mut self,
         sys: &S,
@@ -346,12 +377,29 @@ where
         y: &mut SVector<f64, N>,
         atol: &SVector<f64, N>,
     ) -> Result<SegmentEnd, SimError> {
+        let mut steps = 0;
+        self.integrate_counted(sys, t0, t1, y, atol, &mut steps, &mut || false)
+    }
+
+    /// [`Self::integrate`] adding its steps to `steps` (the steps of the control interval
+    /// so far), failing when the count would exceed `max_steps`, and asking `poll` every
+    /// [`POLL_EVERY_STEPS`] steps of the interval whether to stop.
+    #[allow(clippy::too_many_arguments)]
+    fn integrate_counted<S: OdeSystem<N>>(
+        &mut self,
+        sys: &S,
+        t0: f64,
+        t1: f64,
+        y: &mut SVector<f64, N>,
+        atol: &SVector<f64, N>,
+        steps: &mut usize,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<SegmentEnd, SimError> {
         let opts = self.options;
         let mut t = t0;
         let mut h = self.h.clamp(opts.h_min_s, opts.h_max_s);
         let mut f0 = SVector::<f64, N>::zeros();
         let mut jac = SMatrix::<f64, N, N>::zeros();
-        let mut n_steps = 0usize;
         // Relative floor below which the remaining interval counts as reached.
         let t_eps = 1e-15 * t1.abs().max(1e-9);
         let mut fresh = true;
@@ -370,13 +418,16 @@ where
             let remaining = t1 - t;
             let last = h >= remaining;
             let h_try = if last { remaining } else { h };
-            n_steps += 1;
-            if n_steps > opts.max_steps {
+            *steps += 1;
+            if *steps > opts.max_steps {
                 return Err(SimError::TooManySteps {
                     t_s: t,
                     max_steps: opts.max_steps,
                     state: y.iter().copied().collect(),
                 });
+            }
+            if *steps % POLL_EVERY_STEPS == 0 && poll() {
+                return Err(SimError::Interrupted { t_s: t });
             }
             let Some(out) = self.step(sys, y, &f0, &jac, h_try, atol) else {
                 return Err(SimError::SingularMatrix {

@@ -467,13 +467,34 @@ impl Plant {
     /// segment with the step that ratio predicts to give an error norm of 0.8 (never larger
     /// than the warm start). Error control itself is unchanged: every accepted step meets
     /// the tolerance.
+    ///
+    /// The work of one call is bounded: at most `max_steps` integrator steps over all its
+    /// segments ([`SimError::TooManySteps`]) and at most `max_events` stick/slip transitions
+    /// ([`SimError::TooManyEvents`]); transitions at one instant beyond
+    /// `MAX_EVENTS_AT_ONE_INSTANT` leave the axis stuck, so every further segment starts
+    /// later than the last. A state that is not finite at the end is
+    /// [`SimError::NonFinite`], never returned.
     pub fn advance(&mut self, u_v: f64, t0: f64, t1: f64) -> Result<(), SimError> {
+        self.advance_polled(u_v, t0, t1, &mut || false)
+    }
+
+    /// [`Self::advance`] asking `poll` every `POLL_EVERY_STEPS` integrator steps whether to
+    /// stop (true: [`SimError::Interrupted`]).
+    pub fn advance_polled(
+        &mut self,
+        u_v: f64,
+        t0: f64,
+        t1: f64,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<(), SimError> {
         let jump = (u_v - self.u_last).abs();
         self.u_last = u_v;
         let mut at_jump = jump > 0.0;
         let mut t = t0;
         let mut events_here = 0usize;
         let mut t_last_event = f64::NEG_INFINITY;
+        let mut steps = 0usize;
+        let mut events = 0usize;
         loop {
             if events_here < MAX_EVENTS_AT_ONE_INSTANT {
                 self.try_breakaway(u_v);
@@ -481,9 +502,10 @@ impl Plant {
             if self.mode == Mode::Stuck {
                 // Nothing moves; the current is algebraic or a first-order lag solved exactly.
                 match self.stuck_current(u_v, t1 - t) {
-                    None => return Ok(()),
+                    None => return self.check_finite(t1),
                     Some(dt) => {
                         t += dt;
+                        self.count_event(&mut events, t)?;
                         let t_req = self.axis.holding_torque(&self.y, u_v);
                         self.mode = Mode::Slip(t_req.signum());
                         continue;
@@ -505,10 +527,13 @@ impl Plant {
                 &self.atol,
                 after_jump,
                 &mut self.jump_error_rate,
+                &mut steps,
+                poll,
             )?;
             match end {
-                SegmentEnd::Reached => return Ok(()),
+                SegmentEnd::Reached => return self.check_finite(t1),
                 SegmentEnd::Event { t_s } => {
+                    self.count_event(&mut events, t_s)?;
                     if t_s - t_last_event <= self.integrator.options.event_tol_s {
                         events_here += 1;
                     } else {
@@ -537,23 +562,148 @@ impl Plant {
                             self.mode = Mode::Slip(t_req.signum());
                         }
                     }
-                    if !self.y.iter().all(|v| v.is_finite()) {
-                        return Err(SimError::NonFinite {
-                            t_s: t,
-                            state: self.y.iter().copied().collect(),
-                        });
-                    }
+                    self.check_finite(t)?;
                 }
             }
+        }
+    }
+
+    /// Count one stick/slip transition at `t_s` against the `max_events` of the interval.
+    fn count_event(&self, events: &mut usize, t_s: f64) -> Result<(), SimError> {
+        *events += 1;
+        let max_events = self.integrator.options.max_events;
+        if *events > max_events {
+            return Err(SimError::TooManyEvents {
+                t_s,
+                max_events,
+                state: self.y.iter().copied().collect(),
+            });
+        }
+        Ok(())
+    }
+
+    /// [`SimError::NonFinite`] at `t_s` unless every state is finite.
+    fn check_finite(&self, t_s: f64) -> Result<(), SimError> {
+        if self.y.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(SimError::NonFinite {
+                t_s,
+                state: self.y.iter().copied().collect(),
+            })
         }
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{Axis, Jac, Mode, Segment, State, V};
-    use crate::integrate::OdeSystem;
+    use super::{Axis, Jac, Mode, Plant, Segment, State, V};
+    use crate::error::SimError;
+    use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4};
+    use crate::model::AxisParams;
     use crate::presets::seed_axis;
+
+    /// The seed axis with a Stribeck law that the stick/slip logic cannot resolve: exponent
+    /// 0.5 (a friction slope unbounded at rest) and the smallest Stribeck velocity. Valid, but
+    /// a breakaway chatters between stick and slip at ever shorter intervals.
+    fn chattering_axis() -> AxisParams {
+        let mut p = seed_axis();
+        p.motor_friction.stribeck_exponent = 0.5;
+        p.motor_friction.stribeck_velocity_rad_per_s = 1e-3;
+        p
+    }
+
+    fn plant(p: AxisParams, options: IntegratorOptions) -> Plant {
+        let axis = Axis::new(p).unwrap_or_else(|e| panic!("{e}"));
+        Plant::new(axis, Rodas4::new(options).unwrap_or_else(|e| panic!("{e}")))
+    }
+
+    /// Advance 1 ms intervals at `u_v` until one fails (or 50 pass).
+    fn first_failure(plant: &mut Plant, u_v: f64) -> Option<SimError> {
+        (0..50).find_map(|k| {
+            let t0 = k as f64 * 1e-3;
+            plant.advance(u_v, t0, t0 + 1e-3).err()
+        })
+    }
+
+    #[test]
+    fn chattering_stick_slip_ends_with_too_many_events() {
+        let mut p = plant(chattering_axis(), IntegratorOptions::default());
+        match first_failure(&mut p, 1.0) {
+            Some(SimError::TooManyEvents {
+                t_s,
+                max_events,
+                state,
+            }) => {
+                assert_eq!(max_events, 10_000);
+                assert!((0.0..0.05).contains(&t_s), "{t_s}");
+                assert_eq!(state.len(), 4);
+                assert!(state.iter().all(|v| v.is_finite()));
+                // The budget counts located events and breakaways from stiction alike; the
+                // integrator counts the located ones.
+                let located = p.integrator.stats.n_events;
+                assert!((1_000..=10_001).contains(&located), "{located}");
+            }
+            other => panic!("expected TooManyEvents, got {other:?}"),
+        }
+        // The same voltage on the seed axis: a handful of events per interval.
+        let mut seed = plant(seed_axis(), IntegratorOptions::default());
+        assert!(first_failure(&mut seed, 1.0).is_none());
+        assert!(seed.integrator.stats.n_events < 50);
+    }
+
+    #[test]
+    fn the_event_budget_is_the_option() {
+        let options = IntegratorOptions {
+            max_events: 25,
+            ..IntegratorOptions::default()
+        };
+        let mut p = plant(chattering_axis(), options);
+        match first_failure(&mut p, 1.0) {
+            Some(SimError::TooManyEvents { max_events: 25, .. }) => {
+                assert!(p.integrator.stats.n_events <= 26 * 50);
+            }
+            other => panic!("expected TooManyEvents after 25, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_step_budget_spans_the_segments_of_an_interval() {
+        // Events without limit, so every segment between two events is short: only a count
+        // over the whole interval stops the run.
+        let options = IntegratorOptions {
+            max_events: 1_000_000_000,
+            max_steps: 2_000,
+            ..IntegratorOptions::default()
+        };
+        let mut p = plant(chattering_axis(), options);
+        let before = p.integrator.stats;
+        match first_failure(&mut p, 1.0) {
+            Some(SimError::TooManySteps { max_steps, .. }) => {
+                assert_eq!(max_steps, 2_000);
+                let s = p.integrator.stats;
+                let events = s.n_events - before.n_events;
+                // Many segments, each far below the limit.
+                assert!(events > 100, "{events}");
+            }
+            other => panic!("expected TooManySteps, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_state_that_is_not_finite_is_an_error_not_a_result() {
+        // A resistance far below the valid range (set after validation): the stalled current
+        // u/R overflows while the axis is stuck, where no integrator step would notice.
+        let mut p = plant(seed_axis(), IntegratorOptions::default());
+        p.axis.params.motor.resistance_ohm = 5e-324;
+        match p.advance(0.5, 0.0, 1e-3) {
+            Err(SimError::NonFinite { t_s, state }) => {
+                assert_eq!(t_s, 1e-3);
+                assert!(state[3].is_nan());
+            }
+            other => panic!("expected NonFinite, got {other:?}"),
+        }
+    }
 
     /// The seed-law slip right-hand side (alone and with the Jacobian) equals the general one
     /// bit for bit: states from rest

@@ -9,4 +9,9 @@ mod friction;
 mod params;
 
 pub use axis::{Axis, Mode, Plant, STATE_DIM};
-pub use params::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
+pub use params::{
+    AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table,
+    MIN_COULOMB_FORCE_N, MIN_EFFICIENCY, MIN_INDUCTANCE_H, MIN_LEAD_M, MIN_MASS_KG,
+    MIN_PRESLIDING_STIFFNESS_N_PER_M, MIN_RESISTANCE_OHM, MIN_ROTOR_INERTIA_KG_M2,
+    MIN_STRIBECK_VELOCITY_RAD_PER_S,
+};

@@ -8,8 +8,10 @@
 //!
 //! A numerical failure in one trial is that trial's status (with the time and the state of the
 //! failure); the other trials complete. A stop flag (Ctrl-C) is polled before each trial and,
-//! inside a trial, every 256 control samples by [`run_extended`]; trials cut short or never
-//! started are reported as such. Invalid input is a [`ConfigError`] before any trial runs.
+//! inside a trial, every [`POLL_EVERY_SAMPLES`](super::POLL_EVERY_SAMPLES) control samples by [`run_extended`]; trials
+//! cut short or never started are reported as such. Every trial's work is bounded (the
+//! integrator's `max_steps` and `max_events` per control interval), so every trial gets a
+//! status. Invalid input is a [`ConfigError`] before any trial runs.
 use super::extended::{run_extended_at, stream_seed, ExtendedConfig, KnownInputs};
 use crate::error::{ConfigError, SimError};
 use rayon::prelude::*;
@@ -41,6 +43,8 @@ pub enum TrialStatus {
     /// A configuration error raised inside the trial (cannot happen after the up-front
     /// validation; kept so that no error is ever lost).
     Config = 7,
+    /// More stick/slip events than allowed in one control interval.
+    TooManyEvents = 8,
 }
 
 impl TrialStatus {
@@ -51,6 +55,7 @@ impl TrialStatus {
             SimError::SingularMatrix { .. } => Self::SingularMatrix,
             SimError::NonFinite { .. } => Self::NonFinite,
             SimError::TooManySteps { .. } => Self::TooManySteps,
+            SimError::TooManyEvents { .. } => Self::TooManyEvents,
             SimError::Interrupted { .. } => Self::Interrupted,
             SimError::Config(_) => Self::Config,
         }
@@ -175,14 +180,7 @@ struct TrialResult {
 }
 
 fn failure(trial: u64, e: &SimError) -> TrialFailure {
-    let (t_s, state) = match e {
-        SimError::StepSizeTooSmall { t_s, state, .. }
-        | SimError::SingularMatrix { t_s, state }
-        | SimError::NonFinite { t_s, state }
-        | SimError::TooManySteps { t_s, state, .. } => (*t_s, state.clone()),
-        SimError::Interrupted { t_s } => (*t_s, Vec::new()),
-        SimError::Config(_) => (f64::NAN, Vec::new()),
-    };
+    let (t_s, state) = e.time_and_state();
     TrialFailure {
         trial,
         t_s,
@@ -252,8 +250,8 @@ fn run_trial(
 /// Run trials `trial_start..trial_stop` of `campaign` on a local pool of `threads` threads.
 ///
 /// `progress` (if given) is incremented once per finished trial (completed, failed or not
-/// started); `stop` (if given) stops the campaign within 256 control samples of every
-/// running trial. The result is the same, bit for bit, for any `threads` and any split of
+/// started); `stop` (if given) stops the campaign within [`POLL_EVERY_SAMPLES`](super::POLL_EVERY_SAMPLES) control
+/// samples of every running trial. The result is the same, bit for bit, for any `threads` and any split of
 /// the trial range.
 ///
 /// # Errors

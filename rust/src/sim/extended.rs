@@ -254,13 +254,19 @@ enum AnyPlant {
 }
 
 impl AnyPlant {
-    fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+    fn advance(
+        &mut self,
+        inp: &Inputs,
+        t0: f64,
+        t1: f64,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<(), SimError> {
         if t1 <= t0 {
             return Ok(());
         }
         match self {
-            Self::Rigid(p) => p.advance(inp.u_v, t0, t1),
-            Self::Drive(p) => p.advance(inp, t0, t1),
+            Self::Rigid(p) => p.advance_polled(inp.u_v, t0, t1, poll),
+            Self::Drive(p) => p.advance_polled(inp, t0, t1, poll),
         }
     }
 
@@ -315,6 +321,21 @@ impl AnyPlant {
             Self::Drive(p) => p.stats(),
         }
     }
+
+    /// [`SimError::NonFinite`] at `t_s` (with the plant's state) unless every value of
+    /// `observed` is finite: a recorded channel that is not finite is an error, never output.
+    fn check_finite(&self, t_s: f64, observed: &[f64]) -> Result<(), SimError> {
+        if observed.iter().all(|v| v.is_finite()) {
+            return Ok(());
+        }
+        Err(SimError::NonFinite {
+            t_s,
+            state: match self {
+                Self::Rigid(p) => p.y.iter().copied().collect(),
+                Self::Drive(p) => p.state().to_vec(),
+            },
+        })
+    }
 }
 
 /// Derive the stream seed of one purpose from the run seed (SplitMix64 finaliser).
@@ -343,16 +364,37 @@ fn check_series(name: &str, v: &[f64], n: usize) -> Result<(), ConfigError> {
     Ok(())
 }
 
+/// Control samples between two polls of a run's stop request.
+pub const POLL_EVERY_SAMPLES: usize = 16;
+
+/// The stop request of a run: `flag` set from outside (`None`: never).
+pub(crate) fn flag_poll(flag: Option<&AtomicBool>) -> impl FnMut() -> bool + '_ {
+    move || flag.is_some_and(|f| f.load(Ordering::Relaxed))
+}
+
 /// Run the extended closed loop over `reference_m` (one value per control sample). `stop`
-/// is polled every 256 samples.
+/// is polled every [`POLL_EVERY_SAMPLES`] samples; when set the run ends with
+/// [`SimError::Interrupted`].
 pub fn run_extended(
     cfg: &ExtendedConfig,
     reference_m: &[f64],
     known: KnownInputs<'_>,
     stop: Option<&AtomicBool>,
 ) -> Result<Trace, SimError> {
+    run_extended_polled(cfg, reference_m, known, &mut flag_poll(stop))
+}
+
+/// [`run_extended`] asking `poll` every [`POLL_EVERY_SAMPLES`] control samples whether to
+/// stop (true: the run ends with [`SimError::Interrupted`]); the bindings poll for Ctrl-C.
+/// The poll does not change the run.
+pub fn run_extended_polled(
+    cfg: &ExtendedConfig,
+    reference_m: &[f64],
+    known: KnownInputs<'_>,
+    poll: &mut dyn FnMut() -> bool,
+) -> Result<Trace, SimError> {
     let mut tr = Trace::default();
-    let stats = run_loop(cfg, reference_m, known, stop, &mut Sink::Trace(&mut tr))?;
+    let stats = run_loop(cfg, reference_m, known, poll, &mut Sink::Trace(&mut tr))?;
     tr.stats = stats;
     Ok(tr)
 }
@@ -390,7 +432,7 @@ pub fn run_extended_at(
         next: 0,
         out: &mut out,
     };
-    let stats = run_loop(cfg, reference_m, known, stop, &mut sink)?;
+    let stats = run_loop(cfg, reference_m, known, &mut flag_poll(stop), &mut sink)?;
     out.stats = stats;
     Ok(out)
 }
@@ -412,7 +454,7 @@ fn run_loop(
     cfg: &ExtendedConfig,
     reference_m: &[f64],
     known: KnownInputs<'_>,
-    stop: Option<&AtomicBool>,
+    poll: &mut dyn FnMut() -> bool,
     sink: &mut Sink<'_>,
 ) -> Result<Stats, SimError> {
     cfg.validate()?;
@@ -494,12 +536,8 @@ fn run_loop(
     let mut output_buf: VecDeque<f64> = VecDeque::with_capacity(cfg.computation_delay_samples + 1);
     let mut u_held = 0.0_f64;
     for (k, &r_m) in reference_m.iter().enumerate() {
-        if k % 256 == 0 {
-            if let Some(flag) = stop {
-                if flag.load(Ordering::Relaxed) {
-                    return Err(SimError::Interrupted { t_s: times[k] });
-                }
-            }
+        if k % POLL_EVERY_SAMPLES == 0 && poll() {
+            return Err(SimError::Interrupted { t_s: times[k] });
         }
         let inp = Inputs {
             u_v: u_held,
@@ -574,6 +612,7 @@ fn run_loop(
         match sink {
             Sink::Trace(tr) => {
                 let (_, _, v_t, cur, f_motor, f_table, stuck) = plant.observe(&inp);
+                plant.check_finite(t_n, &[v_t, cur, f_motor, f_table])?;
                 let (command, terms) = match (&cfg.controller, pid_out) {
                     (ControllerKind::Fpga { pid: c, .. }, Some(out)) => (
                         c.output_format.to_f64(out.u),
@@ -629,10 +668,10 @@ fn run_loop(
         if inp_new == inp && matches!(plant, AnyPlant::Rigid(_)) {
             // The update leaves the held input as it is (e.g. at the voltage limit): the
             // plant's ODE is the same on both sides of the update instant, so one segment.
-            plant.advance(&inp, t_n, times[k + 1])?;
+            plant.advance(&inp, t_n, times[k + 1], poll)?;
         } else {
-            plant.advance(&inp, t_n, t_update)?;
-            plant.advance(&inp_new, t_update, times[k + 1])?;
+            plant.advance(&inp, t_n, t_update, poll)?;
+            plant.advance(&inp_new, t_update, times[k + 1], poll)?;
         }
         u_held = u_new;
     }
@@ -668,6 +707,18 @@ pub fn run_drive_open_loop(
     force_n: &[f64],
     sample_period_s: f64,
 ) -> Result<DriveOpenLoopTrace, SimError> {
+    run_drive_open_loop_polled(cfg, voltage_v, force_n, sample_period_s, &mut || false)
+}
+
+/// [`run_drive_open_loop`] asking `poll` every [`POLL_EVERY_SAMPLES`] samples whether to
+/// stop (true: [`SimError::Interrupted`]).
+pub fn run_drive_open_loop_polled(
+    cfg: &ExtendedConfig,
+    voltage_v: &[f64],
+    force_n: &[f64],
+    sample_period_s: f64,
+    poll: &mut dyn FnMut() -> bool,
+) -> Result<DriveOpenLoopTrace, SimError> {
     crate::error::check_positive("sample_period_s", sample_period_s, 10.0)?;
     let n = voltage_v.len();
     check_samples(n)?;
@@ -679,6 +730,7 @@ pub fn run_drive_open_loop(
     let mut tr = DriveOpenLoopTrace::default();
     let record = |plant: &AnyPlant, t: f64, inp: &Inputs, tr: &mut DriveOpenLoopTrace| {
         let (x_t, x_m, v_t, _, f_m, f_t, stuck) = plant.observe(inp);
+        plant.check_finite(t, &[x_t, x_m, v_t, f_m, f_t])?;
         tr.time_s.push(t);
         tr.position_m.push(x_t);
         tr.motor_position_m.push(x_m);
@@ -686,6 +738,7 @@ pub fn run_drive_open_loop(
         tr.motor_friction_force_n.push(f_m);
         tr.table_friction_force_n.push(f_t);
         tr.stuck.push(stuck);
+        Ok::<(), SimError>(())
     };
     let mut inp = Inputs::voltage(0.0);
     for (k, &u_v) in voltage_v.iter().enumerate() {
@@ -695,10 +748,13 @@ pub fn run_drive_open_loop(
             friction_scale: 1.0,
         };
         let t0 = k as f64 * sample_period_s;
-        record(&plant, t0, &inp, &mut tr);
-        plant.advance(&inp, t0, (k + 1) as f64 * sample_period_s)?;
+        if k % POLL_EVERY_SAMPLES == 0 && poll() {
+            return Err(SimError::Interrupted { t_s: t0 });
+        }
+        record(&plant, t0, &inp, &mut tr)?;
+        plant.advance(&inp, t0, (k + 1) as f64 * sample_period_s, poll)?;
     }
-    record(&plant, n as f64 * sample_period_s, &inp, &mut tr);
+    record(&plant, n as f64 * sample_period_s, &inp, &mut tr)?;
     tr.stats = plant.stats();
     Ok(tr)
 }

@@ -9,8 +9,11 @@ pub use campaign::{
     MAX_TRIALS,
 };
 pub use extended::{
-    run_drive_open_loop, run_extended, run_extended_at, stream_seed, ControllerKind,
-    DriveOpenLoopTrace, ExtendedConfig, Interferometer, KnownInputs, Measured, Sensors,
-    SpreadDistribution, StochasticFriction,
+    run_drive_open_loop, run_drive_open_loop_polled, run_extended, run_extended_at,
+    run_extended_polled, stream_seed, ControllerKind, DriveOpenLoopTrace, ExtendedConfig,
+    Interferometer, KnownInputs, Measured, Sensors, SpreadDistribution, StochasticFriction,
+    POLL_EVERY_SAMPLES,
 };
-pub use trial::{run_closed_loop, run_open_loop, ClosedLoopConfig, OpenLoopTrace, Trace};
+pub use trial::{
+    run_closed_loop, run_open_loop, run_open_loop_polled, ClosedLoopConfig, OpenLoopTrace, Trace,
+};

@@ -1,5 +1,5 @@
 //! One closed-loop trial: sample → controller → hold → integrate to the next event in time.
-use super::extended::{run_extended, ExtendedConfig, KnownInputs};
+use super::extended::{run_extended, ExtendedConfig, KnownInputs, POLL_EVERY_SAMPLES};
 use crate::control::{Encoder, OutputStage, PidConfig};
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Rodas4, Stats};
@@ -128,7 +128,8 @@ pub(crate) fn check_samples(n: usize) -> Result<(), ConfigError> {
 }
 
 /// Run the closed loop over `reference_m` (one value per control sample). `stop` is polled
-/// every 256 samples; when set the run ends with [`SimError::Interrupted`]. This is
+/// every [`POLL_EVERY_SAMPLES`] samples; when set the run ends with
+/// [`SimError::Interrupted`]. This is
 /// [`run_extended`] with every effect off.
 pub fn run_closed_loop(
     cfg: &ClosedLoopConfig,
@@ -166,6 +167,18 @@ pub fn run_open_loop(
     voltage_v: &[f64],
     sample_period_s: f64,
 ) -> Result<OpenLoopTrace, SimError> {
+    run_open_loop_polled(axis, integrator, voltage_v, sample_period_s, &mut || false)
+}
+
+/// [`run_open_loop`] asking `poll` every [`POLL_EVERY_SAMPLES`] samples whether to stop
+/// (true: [`SimError::Interrupted`]).
+pub fn run_open_loop_polled(
+    axis: &AxisParams,
+    integrator: &IntegratorOptions,
+    voltage_v: &[f64],
+    sample_period_s: f64,
+    poll: &mut dyn FnMut() -> bool,
+) -> Result<OpenLoopTrace, SimError> {
     crate::error::check_positive("sample_period_s", sample_period_s, 10.0)?;
     check_samples(voltage_v.len())?;
     if let Some((k, v)) = voltage_v.iter().enumerate().find(|(_, v)| !v.is_finite()) {
@@ -177,24 +190,35 @@ pub fn run_open_loop(
     let n = voltage_v.len();
     let mut tr = OpenLoopTrace::default();
     let record = |plant: &Plant, t: f64, u: f64, tr: &mut OpenLoopTrace| {
+        let current = plant.current(u);
+        if !current.is_finite() {
+            return Err(SimError::NonFinite {
+                t_s: t,
+                state: plant.y.iter().copied().collect(),
+            });
+        }
         tr.time_s.push(t);
         tr.position_m.push(plant.y[0]);
         tr.velocity_m_per_s.push(plant.y[1]);
         tr.dahl_force_n.push(plant.y[2]);
-        tr.current_a.push(plant.current(u));
+        tr.current_a.push(current);
         tr.stuck.push(plant.mode == Mode::Stuck);
+        Ok(())
     };
     for (k, &u) in voltage_v.iter().enumerate() {
         let t0 = k as f64 * sample_period_s;
-        record(&plant, t0, u, &mut tr);
-        plant.advance(u, t0, (k + 1) as f64 * sample_period_s)?;
+        if k % POLL_EVERY_SAMPLES == 0 && poll() {
+            return Err(SimError::Interrupted { t_s: t0 });
+        }
+        record(&plant, t0, u, &mut tr)?;
+        plant.advance_polled(u, t0, (k + 1) as f64 * sample_period_s, poll)?;
     }
     record(
         &plant,
         n as f64 * sample_period_s,
         voltage_v[n - 1],
         &mut tr,
-    );
+    )?;
     tr.stats = plant.integrator.stats;
     Ok(tr)
 }
