@@ -18,6 +18,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
 
@@ -27,7 +28,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import nanostage as ns
-from nanostage import cycles
+from nanostage import _core, cycles
 from nanostage.campaign import TrialStatus, run_campaign
 from nanostage.config import ForceDrivePlant
 from nanostage.effects import (
@@ -42,7 +43,7 @@ from nanostage.effects import (
     StaticFrictionMap,
     StochasticFriction,
 )
-from nanostage.simulate import simulate_batch
+from nanostage.simulate import simulate_batch, stop_on_interrupt
 
 SEED = ns.presets.seed(1e-4)
 
@@ -280,6 +281,28 @@ def test_ctrl_c_stops_an_open_loop_run() -> None:
     u = np.full(50, 1.0)
     run = lambda: ns.simulate_plant(plant, u, sample_period_s=1e-3, integrator=_ENDLESS)  # noqa: E731
     assert _stops_on_ctrl_c(run) < 10.0
+
+
+def test_ctrl_c_stops_the_runs_of_worker_threads_inside_stop_on_interrupt() -> None:
+    start = time.monotonic()
+    with (
+        _sigint_after(0.3),
+        stop_on_interrupt(),
+        ThreadPoolExecutor(max_workers=2) as pool,
+    ):
+        futures = [
+            pool.submit(ns.simulate_step, _endless(), 1e-4, duration_s=0.05) for _ in range(2)
+        ]
+        with pytest.raises(KeyboardInterrupt):
+            for f in futures:
+                f.result()
+    assert time.monotonic() - start < 10.0
+    for f in futures:
+        e = f.exception()
+        assert isinstance(e, ns.SimulationError) and str(e).startswith("interrupted at t = ")
+    assert not _core.runs_stop_requested()
+    # Afterwards runs are not stopped.
+    assert ns.simulate_step(SEED, 1e-4, duration_s=0.02).position_m.size == 20
 
 
 # --------------------------------------------------------------------------------------

@@ -6,14 +6,26 @@ current, friction forces, ``stuck``) are sampled at ``t_n``; controller channels
 P/I/D terms, command, DAC code, flags, ``motor_voltage_v``) are the update computed from the
 sample at ``t_n``, which the plant sees from ``t_n + latency`` on. Positions are positive
 along +x; the error is reference − measurement.
+
+Every run has a bounded amount of work per control interval (``IntegratorOptions.max_steps``
+and ``max_events``): one that needs more ends with :class:`nanostage.SimulationError` naming
+the time, the state and the cause, and a channel that is not finite is an error, never a
+result. A run answers Ctrl-C while it computes: called from the main thread, the
+``KeyboardInterrupt`` of SIGINT stops it within a fraction of a second (:func:`simulate`,
+:func:`simulate_batch`, :func:`simulate_plant`, :func:`simulate_open_loop`); runs in other
+threads stop too inside :func:`stop_on_interrupt`.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+import signal
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -32,6 +44,7 @@ __all__ = [
     "simulate_plant",
     "simulate_step",
     "step_reference",
+    "stop_on_interrupt",
 ]
 
 #: Bytes one recorded sample takes (all channels).
@@ -92,6 +105,38 @@ class OpenLoopTrace:
     current_a: FloatArray
     stuck: BoolArray
     stats: dict[str, int]
+
+
+@contextmanager
+def stop_on_interrupt() -> Iterator[None]:
+    """Within the block, SIGINT (Ctrl-C) also stops the simulations that other threads of this
+    process are running (e.g. the workers of a ``ThreadPoolExecutor``): they end with
+    :class:`nanostage.SimulationError` ("interrupted at t = ..."), while the main thread gets
+    the ``KeyboardInterrupt`` of the handler that was installed before. Without it, a worker's
+    run would go on to its end (the main thread's own runs stop anyway).
+
+    Entered from another thread than the main one, or with SIGINT ignored (a background
+    job), it changes nothing. The stop request is cleared on entry and on exit.
+    """
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous == signal.SIG_IGN:
+        yield
+        return
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        _core.runs_request_stop()
+        if callable(previous):
+            previous(signum, frame)
+        else:
+            raise KeyboardInterrupt
+
+    _core.runs_reset()
+    signal.signal(signal.SIGINT, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _core.runs_reset()
 
 
 def _check_samples(n: int, field_name: str, value: float) -> None:

@@ -20,9 +20,9 @@ use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Stats};
 use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
 use crate::sim::{
-    run_campaign, run_drive_open_loop_polled, run_extended, run_extended_polled,
-    run_open_loop_polled, Campaign, ControllerKind, ExtendedConfig, Interferometer, KnownInputs,
-    Sensors, SpreadDistribution, StochasticFriction, Trace,
+    run_campaign, run_drive_open_loop_polled, run_extended_polled, run_open_loop_polled, Campaign,
+    ControllerKind, ExtendedConfig, Interferometer, KnownInputs, Sensors, SpreadDistribution,
+    StochasticFriction, Trace,
 };
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::create_exception;
@@ -278,11 +278,37 @@ fn is_main_thread(py: Python<'_>) -> bool {
     check().unwrap_or(false)
 }
 
+/// Stop flag of every single run and batch of this process (campaigns have their own), set
+/// from Python (`nanostage.simulate.stop_on_interrupt`) so that a Ctrl-C seen by the main
+/// thread also stops the runs of other threads; they end with `SimulationError`
+/// ("interrupted at t = ...").
+static RUN_STOP: AtomicBool = AtomicBool::new(false);
+
+/// Ask every running single run and batch of this process to stop (within a few control
+/// samples).
+#[pyfunction]
+fn runs_request_stop() {
+    RUN_STOP.store(true, Ordering::Relaxed);
+}
+
+/// Clear the stop flag of [`runs_request_stop`].
+#[pyfunction]
+fn runs_reset() {
+    RUN_STOP.store(false, Ordering::Relaxed);
+}
+
+/// Whether a stop of the runs has been requested since the last reset.
+#[pyfunction]
+fn runs_stop_requested() -> bool {
+    RUN_STOP.load(Ordering::Relaxed)
+}
+
 /// Ctrl-C for a run computed without the GIL on the calling thread: the run asks
 /// [`Self::poll`] every few control samples; at most every [`SIGNAL_POLL_INTERVAL`] the poll
 /// takes the GIL back and runs Python's signal handlers (on the main thread only; elsewhere
 /// it stops looking). A handler that raises (SIGINT's `KeyboardInterrupt`) stops the run, and
-/// [`Self::finish`] raises that exception instead of the run's result.
+/// [`Self::finish`] raises that exception instead of the run's result. The process-wide
+/// [`RUN_STOP`] flag stops the run too (on any thread).
 struct SignalPoll {
     last: Instant,
     main_thread: Option<bool>,
@@ -300,7 +326,7 @@ impl SignalPoll {
 
     /// Whether the run should stop.
     fn poll(&mut self) -> bool {
-        if self.raised.is_some() {
+        if self.raised.is_some() || RUN_STOP.load(Ordering::Relaxed) {
             return true;
         }
         if self.main_thread == Some(false) || self.last.elapsed() < SIGNAL_POLL_INTERVAL {
@@ -1081,14 +1107,14 @@ fn simulate_system_batch<'py>(
     let run = || -> Vec<Result<Trace, SimError>> {
         jobs.par_iter()
             .map(|(cfg, r, f, c)| {
-                run_extended(
+                run_extended_polled(
                     cfg,
                     r,
                     KnownInputs {
                         force_n: f,
                         command_v: c,
                     },
-                    Some(&stop),
+                    &mut || stop.load(Ordering::Relaxed) || RUN_STOP.load(Ordering::Relaxed),
                 )
             })
             .collect()
@@ -1709,5 +1735,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(campaign_reset, m)?)?;
     m.add_function(wrap_pyfunction!(campaign_stop_requested, m)?)?;
     m.add_function(wrap_pyfunction!(campaign_progress, m)?)?;
+    m.add_function(wrap_pyfunction!(runs_request_stop, m)?)?;
+    m.add_function(wrap_pyfunction!(runs_reset, m)?)?;
+    m.add_function(wrap_pyfunction!(runs_stop_requested, m)?)?;
     Ok(())
 }
