@@ -537,11 +537,7 @@ _FLOAT_CHANNELS = (
 )
 
 
-@settings(
-    max_examples=min(settings().max_examples, 60),
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
-)
+@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(case=_systems())
 def test_anywhere_in_the_ranges_a_run_is_finite_or_a_named_error(
     case: tuple[Callable[[], ns.System], float],
