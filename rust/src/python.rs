@@ -213,6 +213,9 @@ fn annotation(parent: &Bound<'_, PyAny>, name: &str) -> Option<String> {
         if f.getattr("name").ok()?.extract::<String>().ok()? != name {
             continue;
         }
+        if let Some(choices) = literal_choices(parent, name) {
+            return Some(format!("one of {choices}"));
+        }
         let t = f.getattr("type").ok()?;
         let text = match t.extract::<String>() {
             Ok(s) => s,
@@ -235,6 +238,28 @@ fn annotation(parent: &Bound<'_, PyAny>, name: &str) -> Option<String> {
         });
     }
     None
+}
+
+/// The choices of field `name` of `parent` when its annotation is a `Literal` (also through
+/// an alias such as `AntiWindup`): `'none', 'clamp', 'conditional'`.
+fn literal_choices(parent: &Bound<'_, PyAny>, name: &str) -> Option<String> {
+    let typing = parent.py().import("typing").ok()?;
+    let hint = typing
+        .call_method1("get_type_hints", (parent.get_type(),))
+        .ok()?
+        .get_item(name)
+        .ok()?;
+    let origin = typing.call_method1("get_origin", (&hint,)).ok()?;
+    if !origin.is(&typing.getattr("Literal").ok()?) {
+        return None;
+    }
+    let args = typing.call_method1("get_args", (&hint,)).ok()?;
+    let shown: Vec<String> = args
+        .try_iter()
+        .ok()?
+        .filter_map(|a| a.ok()?.repr().ok().map(|r| r.to_string()))
+        .collect();
+    Some(shown.join(", "))
 }
 
 /// An enum of configuration classes extracted by the Python class name when it is one of
