@@ -157,13 +157,18 @@ def default_emps_path() -> Path:
     here = Path(__file__).resolve()
     repo = here.parents[2]
     candidate = repo.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
-    if here.parent.parent.name == "python" and (repo / "pyproject.toml").is_file():
-        if candidate.is_file():
-            return candidate
+    checkout = here.parent.parent.name == "python" and (repo / "pyproject.toml").is_file()
+    if checkout and candidate.is_file():
+        return candidate
+    where = (
+        f"{candidate} does not exist"
+        if checkout
+        else "an installed package has no default (a source checkout looks in "
+        "../shared/data/emps beside it)"
+    )
     raise FileNotFoundError(
         f"no EMPS data file: pass the path of DATA_EMPS.mat (nanostage emps --mat PATH, "
-        f"load_emps(PATH)) or set {EMPS_ENV_VAR} (the default {candidate} exists only beside "
-        "a source checkout)"
+        f"load_emps(PATH)) or set {EMPS_ENV_VAR}; {where}"
     )
 
 
