@@ -804,9 +804,9 @@ def test_sigterm_stops_diagnose_with_nothing_written(tmp_path: Path) -> None:
 
 POOL_SCRIPT = textwrap.dedent(
     """
-    import dataclasses, multiprocessing, sys, threading
+    import dataclasses, multiprocessing, os, sys, threading
     from concurrent.futures import ProcessPoolExecutor
-    from nanostage import cycles, effects, presets
+    from nanostage import cycles, effects, presets, tune
     from nanostage.campaign import run_campaign
 
     base = presets.seed(100e-6)
@@ -816,15 +816,31 @@ POOL_SCRIPT = textwrap.dedent(
             base.effects, stochastic=effects.StochasticFriction(level_spread=0.1)
         ),
     )
-    cycle = cycles.step_cycle(
-        step_m=100e-6, repeats=10000, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
-    )
     with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as ex:
         def report():
-            with open(sys.argv[1], "w") as f:
+            if len(ex._processes) < 2:  # the pool starts its workers on the first submit
+                threading.Timer(0.2, report).start()
+                return
+            with open(sys.argv[1] + ".tmp", "w") as f:
                 f.write(" ".join(str(p) for p in ex._processes))
-        threading.Timer(1.5, report).start()
-        run_campaign(system, cycle, n_trials=8, executor=ex, chunk_trials=1, progress=False)
+            os.replace(sys.argv[1] + ".tmp", sys.argv[1])
+        threading.Timer(1.0, report).start()
+        if sys.argv[2] == "campaign":
+            cycle = cycles.step_cycle(
+                step_m=100e-6, repeats=10000, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
+            )
+            run_campaign(system, cycle, n_trials=8, executor=ex, chunk_trials=1, progress=False)
+        else:
+            tune.tune(
+                system,
+                tune.tuning_cycle(100e-6),
+                objective=tune.Objective.mix(),
+                n_trials=3000,
+                popsize=4,
+                maxiter=50,
+                executor=ex,
+                progress=False,
+            )
     """
 )
 
@@ -837,20 +853,32 @@ def _alive(pid: int) -> bool:
     return "\nState:\tZ" not in status  # a zombie has exited
 
 
+def _cpu_s(pid: int) -> float:
+    """CPU time a process has used [s] (user + system, from /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text(encoding="utf-8").rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and /proc")
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
-def test_pool_workers_exit_with_the_campaign_process(tmp_path: Path, sig: signal.Signals) -> None:
+@pytest.mark.parametrize(
+    ("what", "sig"),
+    [("campaign", signal.SIGTERM), ("campaign", signal.SIGKILL), ("tune", signal.SIGTERM)],
+)
+def test_pool_workers_exit_with_the_campaign_process(
+    tmp_path: Path, what: str, sig: signal.Signals
+) -> None:
     script = tmp_path / "pool.py"
     script.write_text(POOL_SCRIPT, encoding="utf-8")
     pids_file = tmp_path / "pids.txt"
     log = tmp_path / "err.txt"
     with log.open("wb") as err:
         proc = subprocess.Popen(
-            [sys.executable, str(script), str(pids_file)],
+            [sys.executable, str(script), str(pids_file), what],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=err,
         )
+    workers: list[int] = []
     try:
         deadline = time.monotonic() + 120
         while not (pids_file.exists() and pids_file.read_text(encoding="utf-8").strip()):
@@ -859,6 +887,11 @@ def test_pool_workers_exit_with_the_campaign_process(tmp_path: Path, sig: signal
             time.sleep(0.05)
         workers = [int(p) for p in pids_file.read_text(encoding="utf-8").split()]
         assert len(workers) == 2 and all(_alive(p) for p in workers)
+        # A worker watches its parent from its first chunk on: wait until both compute.
+        while min(_cpu_s(p) for p in workers) < 0.3:
+            assert proc.poll() is None, log.read_text(encoding="utf-8")
+            assert time.monotonic() < deadline, "the workers did not start computing"
+            time.sleep(0.05)
         proc.send_signal(sig)  # the campaign's process dies at once, no clean-up runs
         proc.wait(timeout=60)
         deadline = time.monotonic() + 30  # workers poll their parent every 0.2 s
@@ -869,3 +902,6 @@ def test_pool_workers_exit_with_the_campaign_process(tmp_path: Path, sig: signal
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+        for p in workers:  # after a failure: leave no worker behind
+            if _alive(p):
+                os.kill(p, signal.SIGKILL)

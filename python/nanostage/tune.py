@@ -46,6 +46,7 @@ Example::
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -60,7 +61,7 @@ from scipy.optimize import differential_evolution
 
 from . import presets
 from ._core import ConfigError
-from .campaign import CampaignResult, _Bar, _int_arg, run_campaign
+from .campaign import CampaignResult, _Bar, _int_arg, _watch_parent, run_campaign
 from .config import AntiWindup, FpgaPid, System
 from .cycles import Cycle, step_cycle
 from .effects import StochasticFriction
@@ -658,8 +659,11 @@ class _Evaluator:
         self.seed = seed
         self.threads = threads
         self.per_trial = per_trial
+        # The process running the search: a pool worker it started exits when it is gone.
+        self.parent_pid = os.getpid()
 
     def __call__(self, key: tuple[float, float, float, AntiWindup]) -> Candidate:
+        _watch_parent(self.parent_pid)
         kp, ki, kd, aw = key
         sys_c = _with_candidate(self.system, kp, ki, kd, aw)
         res = run_campaign(
