@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import nanostage
-from nanostage import emps, emps_study, iso230_2, output, paper_campaigns, reproduce, tune
+from nanostage import iso230_2, output, tune
 from nanostage.cli import Terminated, main
 from nanostage.diagnosis import benchmark
 from nanostage.diagnosis import run as diagnosis_run
@@ -33,6 +33,7 @@ from nanostage.output import (
     staged_output,
     write_json,
 )
+from nanostage.studies import emps, emps_study, paper_campaigns, reproduce
 
 from conftest import SHARED
 
@@ -607,7 +608,7 @@ def test_emps_has_no_source_tree_default_once_installed(
     cli: Run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.delenv(emps.EMPS_ENV_VAR, raising=False)
-    installed = tmp_path / "site-packages" / "nanostage" / "emps.py"
+    installed = tmp_path / "site-packages" / "nanostage" / "studies" / "emps.py"
     monkeypatch.setattr(emps, "__file__", str(installed))
     with pytest.raises(FileNotFoundError, match="--mat PATH"):
         emps.default_emps_path()

@@ -13,7 +13,8 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.io import savemat
 
-from nanostage.emps import (
+from nanostage.experiment import Experiment
+from nanostage.studies.emps import (
     EMPS_ENV_VAR,
     PUBLISHED_ASYMMETRIC,
     PUBLISHED_SYMMETRIC,
@@ -28,7 +29,6 @@ from nanostage.emps import (
     main,
     relative_error,
 )
-from nanostage.experiment import Experiment
 
 from conftest import SHARED
 

@@ -17,9 +17,9 @@ import pytest
 import nanostage as ns
 from nanostage import _core, presets
 from nanostage.diagnosis.manifest import replace_paths
-from nanostage.emps import EmpsData, cascade_command_v, load_emps
-from nanostage.emps_study import output_error_fit, simulate_experiment, yardstick
 from nanostage.predict import PredictError, predict
+from nanostage.studies.emps import EmpsData, cascade_command_v, load_emps
+from nanostage.studies.emps_study import output_error_fit, simulate_experiment, yardstick
 
 from conftest import SHARED
 
@@ -167,7 +167,7 @@ def test_diagnosis_on_real_data_from_the_naive_model(data: EmpsData, tmp_path: P
     it selects simulates the measured force better than the naive one."""
     from nanostage.diagnosis.engine import DiagnosisSettings
     from nanostage.diagnosis.run import diagnose
-    from nanostage.emps_study import write_manifest
+    from nanostage.studies.emps_study import write_manifest
 
     m = write_manifest(
         tmp_path / "naive.toml",

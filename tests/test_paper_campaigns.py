@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from nanostage.cli import main
-from nanostage.paper_campaigns import (
+from nanostage.studies.paper_campaigns import (
     CampaignSettings,
     _calibrate,
     _readings,

@@ -122,8 +122,8 @@ def _wrote(out: str | Path, names: Sequence[str]) -> str:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from .paper_campaigns import CampaignSettings, check_threads, write_paper_campaigns_into
-    from .reproduce import reproduce_into
+    from .studies.paper_campaigns import CampaignSettings, check_threads, write_paper_campaigns_into
+    from .studies.reproduce import reproduce_into
 
     # Every argument and the output folder are checked before any work.
     campaigns = None
@@ -279,7 +279,7 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _emps(args: argparse.Namespace) -> int:
-    from .emps_study import emps_study
+    from .studies.emps_study import emps_study
 
     r = emps_study(args.out, mat_path=args.mat)
     rows = [
@@ -298,7 +298,7 @@ def _emps(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace) -> int:
     from . import presets
     from .campaign import MAX_TRIALS, _int_arg
-    from .paper_campaigns import check_threads
+    from .studies.paper_campaigns import check_threads
     from .tune import (
         Objective,
         check_search,

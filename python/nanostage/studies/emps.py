@@ -15,7 +15,7 @@ is a real ball-screw axis measured in closed loop at 1 kHz. This module
 
 The data are never copied into the repository: by default the file is read from
 ``<repo>/../shared/data/emps/DATA_EMPS.mat``; set ``NANOSTAGE_EMPS_MAT`` to read another
-copy. ``python -m nanostage.emps`` prints the controller check and the identification
+copy. ``python -m nanostage.studies.emps`` prints the controller check and the identification
 tables (see ``docs/emps.md``). This module needs scipy (``scipy.io``, ``scipy.signal``).
 """
 
@@ -36,9 +36,9 @@ try:
     from scipy import io as _sio
     from scipy import signal as _signal
 except ImportError as exc:  # pragma: no cover - scipy is in the test extra
-    raise ImportError("nanostage.emps needs scipy (pip install scipy)") from exc
+    raise ImportError("nanostage.studies.emps needs scipy (pip install scipy)") from exc
 
-from .experiment import Experiment
+from ..experiment import Experiment
 
 __all__ = [
     "EMPS_ENV_VAR",
@@ -155,9 +155,9 @@ def default_emps_path() -> Path:
     if env:
         return Path(env)
     here = Path(__file__).resolve()
-    repo = here.parents[2]
+    repo = here.parents[3]
     candidate = repo.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
-    checkout = here.parent.parent.name == "python" and (repo / "pyproject.toml").is_file()
+    checkout = here.parents[2].name == "python" and (repo / "pyproject.toml").is_file()
     if checkout and candidate.is_file():
         return candidate
     where = (
@@ -611,8 +611,11 @@ def _table(result: IdimResult, published: dict[str, float], published_rel_err: f
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m nanostage.emps [PATH]``: print the controller check and IDIM-LS tables."""
-    parser = argparse.ArgumentParser(prog="python -m nanostage.emps", description=main.__doc__)
+    """``python -m nanostage.studies.emps [PATH]``: print the controller check and IDIM-LS
+    tables."""
+    parser = argparse.ArgumentParser(
+        prog="python -m nanostage.studies.emps", description=main.__doc__
+    )
     parser.add_argument("path", nargs="?", default=None, help="DATA_EMPS.mat (default: shared)")
     parser.add_argument(
         "--decimate",

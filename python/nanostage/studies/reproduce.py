@@ -7,11 +7,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import presets
-from .analysis import StepMetrics, step_metrics
-from .config import FpgaPid, Plant
-from .output import staged_output, write_json
-from .simulate import Trace, simulate_step
+from .. import presets
+from ..analysis import StepMetrics, step_metrics
+from ..config import FpgaPid, Plant
+from ..output import staged_output, write_json
+from ..simulate import Trace, simulate_step
 
 #: (step size, simulated duration) of the paper's experiments.
 EXPERIMENTS_M_S: tuple[tuple[float, float], ...] = (
@@ -127,7 +127,7 @@ def reproduce_into(folder: Path, *, plot: bool = True) -> dict[str, object]:
     }
     write_json(summary, out / "summary.json", indent=2)
     if plot:
-        from .plotting import plot_steps
+        from ..plotting import plot_steps
 
         pick = [e for e in exps if e.step_m in (100e-6, 1e-3)]
         plot_steps(

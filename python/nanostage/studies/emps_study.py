@@ -16,13 +16,13 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
-from . import presets
-from .config import ForceDrivePlant, System
-from .diagnosis.manifest import get_path, replace_paths
+from .. import presets
+from ..config import ForceDrivePlant, System
+from ..diagnosis.manifest import get_path, replace_paths
+from ..experiment import Experiment
+from ..output import check_output_dir, staged_output, write_json
+from ..simulate import Trace, simulate
 from .emps import EmpsData, controller_fit, emps_velocity_force, load_emps, relative_error
-from .experiment import Experiment
-from .output import check_output_dir, staged_output, write_json
-from .simulate import Trace, simulate
 
 __all__ = [
     "OutputErrorFit",
@@ -117,7 +117,7 @@ def output_error_fit(
     emulation's 0.004 V rms) against the simulation, starting from ``system`` (default: the
     authors' symmetric model). Standard errors from the Jacobian, inflated by the residual's
     integrated autocorrelation time."""
-    from .diagnosis.engine import _autocorrelation_time
+    from ..diagnosis.engine import _autocorrelation_time
 
     base = system or presets.emps()
     e = experiment or data.experiment
@@ -220,7 +220,7 @@ def emps_study(out_dir: str | Path, *, mat_path: str | None = None) -> dict[str,
     """The EMPS study: authors' models and the output-error model against the data
     (yardstick), written to ``out_dir/emps.json``.
 
-    ``out_dir`` and the data (:func:`~nanostage.emps.load_emps`, :func:`check_study_data`)
+    ``out_dir`` and the data (:func:`~nanostage.studies.emps.load_emps`, :func:`check_study_data`)
     are checked before any work; the folder is written whole or not at all
     (:func:`nanostage.output.staged_output`)."""
     check_output_dir(out_dir)

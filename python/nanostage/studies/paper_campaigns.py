@@ -46,13 +46,13 @@ from typing import Any, Final
 import numpy as np
 from scipy.optimize import brentq
 
-from . import presets
-from ._core import ConfigError
-from .campaign import MAX_THREADS, MAX_TRIALS, CampaignResult, run_campaign
-from .config import System
-from .cycles import Cycle, step_cycle
-from .effects import Backlash, StochasticFriction
-from .output import staged_output, write_json
+from .. import presets
+from .._core import ConfigError
+from ..campaign import MAX_THREADS, MAX_TRIALS, CampaignResult, run_campaign
+from ..config import System
+from ..cycles import Cycle, step_cycle
+from ..effects import Backlash, StochasticFriction
+from ..output import staged_output, write_json
 
 __all__ = [
     "PAPER_FIGURES_M",
