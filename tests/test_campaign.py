@@ -203,17 +203,19 @@ def test_progress_counter_is_readable_while_running() -> None:
     long = cycles.step_cycle(
         step_m=100e-6, repeats=10, dwell_s=0.2, return_s=0.1, sample_period_s=1e-3
     )
-    _core.campaign_reset()
+    control = _core.CampaignControl()
     seen: list[int] = []
     worker = threading.Thread(
-        target=_run_chunk, args=(stochastic(), long.reference_m, long.measure_index, 0, 12, 0)
+        target=_run_chunk,
+        args=(stochastic(), long.reference_m, long.measure_index, 0, 12, 0),
+        kwargs={"control": control},
     )
     worker.start()
     while worker.is_alive():
-        seen.append(_core.campaign_progress())
+        seen.append(control.progress)
         time.sleep(0.01)
     worker.join()
-    assert _core.campaign_progress() == 12
+    assert control.progress == 12
     assert any(0 < v < 12 for v in seen), seen
 
 
@@ -228,16 +230,19 @@ def test_ctrl_c_stops_within_a_second() -> None:
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
     t0 = time.perf_counter()
+    control = _core.CampaignControl()
     timer.start()
     try:
         with pytest.raises(KeyboardInterrupt):
-            run_campaign(stochastic(), long, n_trials=20, threads=2, progress=False)
+            run_campaign(
+                stochastic(), long, n_trials=20, threads=2, progress=False, control=control
+            )
         elapsed = time.perf_counter() - t0
     finally:
         timer.cancel()
         signal.signal(signal.SIGINT, previous)
     assert elapsed < 2.0, elapsed
-    assert _core.campaign_stop_requested()
+    assert control.stop_requested
     # The next campaign starts afresh.
     short = cycles.step_cycle(
         step_m=100e-6, repeats=2, dwell_s=0.05, return_s=0.05, sample_period_s=1e-3
@@ -251,10 +256,19 @@ def test_a_stop_request_from_elsewhere_marks_trials() -> None:
     long = cycles.step_cycle(
         step_m=100e-6, repeats=1000, dwell_s=0.5, return_s=0.5, sample_period_s=1e-3
     )
-    timer = threading.Timer(0.3, _core.campaign_request_stop)
+    control = _core.CampaignControl()
+    timer = threading.Timer(0.3, control.request_stop)
     timer.start()
     try:
-        r = run_campaign(stochastic(), long, n_trials=6, threads=2, chunk_trials=2, progress=False)
+        r = run_campaign(
+            stochastic(),
+            long,
+            n_trials=6,
+            threads=2,
+            chunk_trials=2,
+            progress=False,
+            control=control,
+        )
     finally:
         timer.cancel()
     assert r.n_failed == 6
@@ -287,10 +301,10 @@ def test_bad_input_raises_before_work(cycle: cycles.Cycle) -> None:
         bad, "effects", replace(s.effects, stochastic=StochasticFriction(level_spread=0.5))
     )
     object.__setattr__(bad.effects.stochastic, "level_spread", 0.9)
-    _core.campaign_reset()
+    control = _core.CampaignControl()
     with ThreadPoolExecutor(1) as ex, pytest.raises(ns.ConfigError, match="level_spread"):
-        run_campaign(bad, cycle, n_trials=2, executor=ex, progress=False)
-    assert _core.campaign_progress() == 0
+        run_campaign(bad, cycle, n_trials=2, executor=ex, progress=False, control=control)
+    assert control.progress == 0
     with pytest.raises(ns.ConfigError, match="measure_index"):
         _run_chunk(s, cycle.reference_m, np.array([5, 5]), 0, 1, 0)
     with pytest.raises(ns.ConfigError, match="measure_index"):

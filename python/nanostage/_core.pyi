@@ -1,27 +1,22 @@
 """Typed stubs of the Rust extension (checked by mypy.stubtest in CI)."""
 
-from typing import Any
+from typing import Any, final
 
 import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "CampaignControl",
     "ConfigError",
     "ConfigTypeError",
     "SimulationError",
+    "StopFlag",
     "__version__",
-    "campaign_progress",
-    "campaign_request_stop",
-    "campaign_reset",
     "campaign_run",
-    "campaign_stop_requested",
     "cascade_run",
     "friction_response",
     "fxp_requantize",
     "pid_run",
-    "runs_request_stop",
-    "runs_reset",
-    "runs_stop_requested",
     "seed_values",
     "simulate_open_loop",
     "simulate_system",
@@ -46,6 +41,26 @@ class SimulationError(RuntimeError):
     t_s: float
     state: list[float]
 
+@final
+class StopFlag:
+    """A stop request for the runs it is passed to (``stop=``)."""
+
+    def __init__(self) -> None: ...
+    def request_stop(self) -> None: ...
+    @property
+    def stop_requested(self) -> bool: ...
+
+@final
+class CampaignControl:
+    """Stop request and progress counter of one campaign (``control=``)."""
+
+    def __init__(self) -> None: ...
+    def request_stop(self) -> None: ...
+    @property
+    def stop_requested(self) -> bool: ...
+    @property
+    def progress(self) -> int: ...
+
 def simulate_system(
     system: Any,
     reference_m: npt.NDArray[np.float64],
@@ -53,6 +68,8 @@ def simulate_system(
     command_disturbance_v: npt.NDArray[np.float64] | None = None,
     seed: int = 0,
     initial_position_m: float = 0.0,
+    *,
+    stop: StopFlag | None = None,
 ) -> dict[str, Any]: ...
 def simulate_system_batch(
     systems: list[Any],
@@ -62,12 +79,16 @@ def simulate_system_batch(
     seeds: list[int],
     initial_positions_m: list[float],
     threads: int = 0,
+    *,
+    stop: StopFlag | None = None,
 ) -> list[dict[str, Any]]: ...
 def simulate_open_loop(
     plant: Any,
     integrator: Any,
     voltage_v: npt.NDArray[np.float64],
     sample_period_s: float,
+    *,
+    stop: StopFlag | None = None,
 ) -> dict[str, Any]: ...
 def pid_run(
     controller: Any,
@@ -90,6 +111,8 @@ def simulate_system_open_loop(
     voltage_v: npt.NDArray[np.float64],
     sample_period_s: float,
     force_n: npt.NDArray[np.float64] | None = None,
+    *,
+    stop: StopFlag | None = None,
 ) -> dict[str, Any]: ...
 def friction_response(
     friction: Any,
@@ -98,6 +121,8 @@ def friction_response(
     velocity_m_per_s: npt.NDArray[np.float64],
     integrator: Any,
     terms: list[tuple[float, float, float]] = ...,
+    *,
+    stop: StopFlag | None = None,
 ) -> npt.NDArray[np.float64]: ...
 def campaign_run(
     system: Any,
@@ -107,11 +132,6 @@ def campaign_run(
     trial_stop: int,
     seed: int,
     threads: int,
+    *,
+    control: CampaignControl | None = None,
 ) -> dict[str, Any]: ...
-def campaign_request_stop() -> None: ...
-def campaign_reset() -> None: ...
-def campaign_stop_requested() -> bool: ...
-def campaign_progress() -> int: ...
-def runs_request_stop() -> None: ...
-def runs_reset() -> None: ...
-def runs_stop_requested() -> bool: ...

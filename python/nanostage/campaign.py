@@ -294,6 +294,9 @@ class CampaignResult:
 _PARENT_POLL_S: Final[float] = 0.2
 #: The process a worker process of this module watches (see :func:`_watch_parent`).
 _watched_parent: int | None = None
+#: The stop request of the chunks this process runs for an executor (a worker process stops
+#: them when its parent is gone).
+_worker_control = _core.CampaignControl()
 
 
 def _watch_parent(parent_pid: int) -> None:
@@ -310,7 +313,7 @@ def _watch_parent(parent_pid: int) -> None:
     def watch() -> None:
         while os.getppid() == parent_pid:
             time.sleep(_PARENT_POLL_S)
-        _core.campaign_request_stop()
+        _worker_control.request_stop()
         os._exit(1)
 
     threading.Thread(target=watch, name="nanostage-parent-watch", daemon=True).start()
@@ -325,13 +328,15 @@ def _run_chunk(
     seed: int,
     threads: int = 1,
     parent_pid: int | None = None,
+    control: _core.CampaignControl | None = None,
 ) -> dict[str, Any]:
     """Trials ``start..stop`` of a campaign (the unit of work an executor runs).
 
     Top level so that it pickles. Returns the core's dict: ``position_m``, ``encoder_m``
     (shape ``(stop - start, n_measurements)``), ``status``, and the ``failed_*`` entries.
     ``parent_pid``: the process running the campaign; a pool worker it started exits when
-    that process is gone (:func:`_watch_parent`).
+    that process is gone (:func:`_watch_parent`). ``control``: the campaign's stop request and
+    progress counter (default: the one of this process's executor chunks).
     """
     if parent_pid is not None:
         _watch_parent(int(parent_pid))
@@ -343,6 +348,7 @@ def _run_chunk(
         int(stop),
         int(seed),
         int(threads),
+        control=_worker_control if control is None else control,
     )
 
 
@@ -413,6 +419,7 @@ def _run_local(
     seed: int,
     threads: int,
     bar: _Bar,
+    control: _core.CampaignControl,
 ) -> list[dict[str, Any]]:
     """Run the chunks one after the other on a worker thread; the calling thread shows the
     progress and turns Ctrl-C into a stop request."""
@@ -424,20 +431,28 @@ def _run_local(
             for a, b in bounds:
                 # After a stop request the remaining chunks return at once (NOT_STARTED).
                 parts.append(
-                    _run_chunk(system, cycle.reference_m, cycle.measure_index, a, b, seed, threads)
+                    _run_chunk(
+                        system,
+                        cycle.reference_m,
+                        cycle.measure_index,
+                        a,
+                        b,
+                        seed,
+                        threads,
+                        control=control,
+                    )
                 )
         except BaseException as exc:  # handed to the calling thread
             error.append(exc)
 
-    _core.campaign_reset()
     worker = threading.Thread(target=work, name="nanostage-campaign", daemon=True)
     worker.start()
     try:
         while worker.is_alive():
             worker.join(_REFRESH_S)
-            bar.update(_core.campaign_progress())
+            bar.update(control.progress)
     except KeyboardInterrupt:
-        _core.campaign_request_stop()
+        control.request_stop()
         worker.join()
         raise
     if error:
@@ -497,6 +512,7 @@ def run_campaign(
     executor: Executor | _Submitter | None = None,
     chunk_trials: int | None = None,
     progress: bool = True,
+    control: _core.CampaignControl | None = None,
 ) -> CampaignResult:
     """Run ``n_trials`` trials of ``cycle`` on the closed loop of ``system``.
 
@@ -524,6 +540,9 @@ def run_campaign(
         ``ceil(n_trials / 32)`` with an executor.
     progress : bool, default True
         Show a progress bar on stderr.
+    control : nanostage._core.CampaignControl, optional
+        Stop request and progress counter of a local campaign, to stop it or watch it from
+        another thread (default: a new one; each campaign has its own).
 
     Returns
     -------
@@ -563,7 +582,8 @@ def run_campaign(
     bar = _Bar(n, sys.stderr if progress else None, "campaign")
     t0 = time.perf_counter()
     if executor is None:
-        parts = _run_local(system, cycle, bounds, s, n_threads, bar)
+        ctl = _core.CampaignControl() if control is None else control
+        parts = _run_local(system, cycle, bounds, s, n_threads, bar, ctl)
     else:
         parts = _run_executor(system, cycle, bounds, s, n_threads, executor, bar)
     compute_s = time.perf_counter() - t0

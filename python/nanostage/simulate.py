@@ -107,6 +107,11 @@ class OpenLoopTrace:
     stats: dict[str, int]
 
 
+#: The stop flag the runs of this module pass to the core while :func:`stop_on_interrupt` is
+#: active (None otherwise).
+_interrupt_stop: _core.StopFlag | None = None
+
+
 @contextmanager
 def stop_on_interrupt() -> Iterator[None]:
     """Within the block, SIGINT (Ctrl-C) also stops the simulations that other threads of this
@@ -116,27 +121,31 @@ def stop_on_interrupt() -> Iterator[None]:
     run would go on to its end (the main thread's own runs stop anyway).
 
     Entered from another thread than the main one, or with SIGINT ignored (a background
-    job), it changes nothing. The stop request is cleared on entry and on exit.
+    job), it changes nothing. Each block has its own stop request (a :class:`_core.StopFlag`),
+    so runs started after it are not stopped.
     """
     previous = signal.getsignal(signal.SIGINT)
     if threading.current_thread() is not threading.main_thread() or previous == signal.SIG_IGN:
         yield
         return
 
+    global _interrupt_stop
+    stop = _core.StopFlag()
+
     def interrupt(signum: int, frame: FrameType | None) -> None:
-        _core.runs_request_stop()
+        stop.request_stop()
         if callable(previous):
             previous(signum, frame)
         else:
             raise KeyboardInterrupt
 
-    _core.runs_reset()
+    outer, _interrupt_stop = _interrupt_stop, stop
     signal.signal(signal.SIGINT, interrupt)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
-        _core.runs_reset()
+        _interrupt_stop = outer
 
 
 def _check_samples(n: int, field_name: str, value: float) -> None:
@@ -258,6 +267,7 @@ def simulate(
         _series(command_disturbance_v, "command_disturbance_v", ref.size),
         int(seed),
         float(ref[0] if initial_position_m is None else initial_position_m),
+        stop=_interrupt_stop,
     )
     return _trace(system, out)
 
@@ -306,6 +316,7 @@ def simulate_batch(
         [int(s) for s in seed_list],
         [float(r[0] if x is None else x) for x, r in zip(starts, refs, strict=True)],
         int(threads),
+        stop=_interrupt_stop,
     )
     return [_trace(s, o) for s, o in zip(systems, outs, strict=True)]
 
@@ -381,7 +392,7 @@ def simulate_plant(
         )
     _check_samples(u.size, "voltage_v (length)", u.size)
     out = _core.simulate_open_loop(
-        plant, integrator or IntegratorOptions(), u, float(sample_period_s)
+        plant, integrator or IntegratorOptions(), u, float(sample_period_s), stop=_interrupt_stop
     )
     return OpenLoopTrace(**out)
 
@@ -418,6 +429,10 @@ def simulate_open_loop(
         )
     _check_samples(u.size, "voltage_v (length)", u.size)
     out = _core.simulate_system_open_loop(
-        system, u, float(sample_period_s), _series(force_n, "force_n", u.size)
+        system,
+        u,
+        float(sample_period_s),
+        _series(force_n, "force_n", u.size),
+        stop=_interrupt_stop,
     )
     return DriveOpenLoopTrace(**out)

@@ -1,12 +1,18 @@
 //! Orchestration: the control-tick loop and what it records. No physics, no pyo3.
 
 mod campaign;
+mod config;
 mod extended;
 mod trial;
 
 pub use campaign::{
     run_campaign, trial_seed, Campaign, CampaignOutput, TrialFailure, TrialStatus, MAX_THREADS,
     MAX_TRIALS,
+};
+pub use config::{
+    build_system, modulation, side, BacklashSpec, ComplianceSpec, ControllerSpec, EffectsSpec,
+    EncoderErrorsSpec, EncoderSpec, ForceDriveSpec, FrictionModifiersSpec, FxpSpec, PidSpec,
+    PlantSpec, PositionFrictionSpec, StochasticSpec, SystemSpec,
 };
 pub use extended::{
     run_drive_open_loop, run_drive_open_loop_polled, run_extended, run_extended_at,
