@@ -37,7 +37,7 @@ from nanostage.diagnosis import (
     write_report,
     write_trace_csv,
 )
-from nanostage.effect_names import EFFECT_NAMES
+from nanostage.effects import EFFECT_NAMES
 from nanostage.experiment import Experiment
 from nanostage.iso230_2 import evaluate
 

@@ -18,7 +18,7 @@ import pytest
 
 import nanostage as ns
 from nanostage import presets
-from nanostage.config import System
+from nanostage.config import System, get_path, replace_paths
 from nanostage.diagnosis.benchmark import (
     BREAKAWAY_GAINS,
     DESIGN,
@@ -65,7 +65,7 @@ from nanostage.diagnosis.engine import (
     simulate_readings_and_commands,
     with_starts,
 )
-from nanostage.diagnosis.manifest import get_path, load_manifest, replace_paths
+from nanostage.diagnosis.manifest import load_manifest
 from nanostage.diagnosis.run import (
     best_single,
     diagnose,
@@ -74,8 +74,8 @@ from nanostage.diagnosis.run import (
     ties_of_selected,
 )
 from nanostage.diagnosis.traces import write_trace_csv
-from nanostage.effect_names import EFFECT_NAMES
 from nanostage.effects import (
+    EFFECT_NAMES,
     DwellStaticFriction,
     Effects,
     EncoderErrors,

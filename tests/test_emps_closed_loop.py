@@ -16,7 +16,7 @@ import pytest
 
 import nanostage as ns
 from nanostage import _core, presets
-from nanostage.diagnosis.manifest import replace_paths
+from nanostage.config import replace_paths
 from nanostage.predict import PredictError, predict
 from nanostage.studies.emps import EmpsData, cascade_command_v, load_emps
 from nanostage.studies.emps_study import output_error_fit, simulate_experiment, yardstick

@@ -12,8 +12,11 @@ type, e.g. ``motor = 'abc' (str) is invalid: expected a Motor``.
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 from . import _core
 from .effects import Effects, StaticFrictionMap
@@ -269,3 +272,94 @@ class System:
     def sample_period_s(self) -> float:
         """Control period, s."""
         return self.controller.sample_period_s
+
+
+# --------------------------------------------------------------------------------------------
+# Dotted paths into the configuration dataclass tree
+# --------------------------------------------------------------------------------------------
+
+
+def did_you_mean(word: str, options: Sequence[str]) -> str:
+    """`` (did you mean 'x'?)`` naming the closest of ``options`` to ``word``, or ``""``."""
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def get_path(obj: Any, path: str) -> Any:
+    """The value at a dotted field path, e.g. ``get_path(system, "plant.dahl.exponent")``.
+
+    Raises
+    ------
+    KeyError
+        Naming the first component that is not a field, the fields there and a close match.
+    """
+    cur = obj
+    done: list[str] = []
+    for part in path.split("."):
+        if not dataclasses.is_dataclass(cur) or isinstance(cur, type):
+            where = ".".join(done)
+            what = "is None (switched off in the preset)" if cur is None else "is a value"
+            raise KeyError(f"{where!r} {what}, not a group of fields; {path!r} goes past it")
+        names = [f.name for f in dataclasses.fields(cur)]
+        if part not in names:
+            where = ".".join(done) or "the model"
+            raise KeyError(
+                f"{where} ({type(cur).__name__}) has no field {part!r}{did_you_mean(part, names)}; "
+                f"its fields are: {', '.join(names)}"
+            )
+        cur = getattr(cur, part)
+        done.append(part)
+    return cur
+
+
+def replace_paths(obj: Any, values: Mapping[str, Any]) -> Any:
+    """A copy of a frozen dataclass tree with the fields at dotted paths replaced.
+
+    Each dataclass on a path is rebuilt with :func:`dataclasses.replace`, so its validation
+    (``__post_init__``) runs again: invalid values raise the dataclass's error
+    (:class:`nanostage.ConfigError` for the nanostage configuration).
+
+    Parameters
+    ----------
+    obj : dataclass instance
+        The root (e.g. a :class:`nanostage.System`).
+    values : mapping of str to Any
+        Dotted path → new value.
+    """
+    for path in values:
+        get_path(obj, path)  # raise KeyError early for a bad path
+    return _replace_checked(obj, values)
+
+
+def _replace_checked(obj: Any, values: Mapping[str, Any]) -> Any:
+    """:func:`replace_paths` once every path is known to exist (checked once, at the root:
+    the diagnosis sets each experiment's controller on every model it simulates)."""
+    grouped: dict[str, dict[str, Any]] = {}
+    leaves: dict[str, Any] = {}
+    for path, value in values.items():
+        head, _, rest = path.partition(".")
+        if rest:
+            grouped.setdefault(head, {})[rest] = value
+        else:
+            leaves[head] = value
+    changes = dict(leaves)
+    for head, sub in grouped.items():
+        changes[head] = _replace_checked(getattr(obj, head), sub)
+    return dataclasses.replace(obj, **changes) if changes else obj
+
+
+def field_paths(obj: Any, *, numeric_only: bool = True) -> tuple[str, ...]:
+    """Every leaf field path of a dataclass tree (numeric leaves only by default)."""
+    out: list[str] = []
+
+    def walk(cur: Any, prefix: str) -> None:
+        for f in dataclasses.fields(cur):
+            v = getattr(cur, f.name)
+            p = f"{prefix}{f.name}"
+            if dataclasses.is_dataclass(v) and not isinstance(v, type):
+                walk(v, p + ".")
+            elif not numeric_only or (isinstance(v, int | float) and not isinstance(v, bool)):
+                out.append(p)
+
+    walk(obj, "")
+    return tuple(out)

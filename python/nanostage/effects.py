@@ -4,7 +4,8 @@ dataclass with physical parameters (SI units in the names). All are off by defau
 
 Valid ranges are enforced by the Rust core (``rust/src/drive``) when the system is built.
 The equations are in ``docs/effects.md``; the stable names are in
-:data:`nanostage.effect_names.EFFECT_NAMES`.
+:data:`EFFECT_NAMES` (the diagnosis refers to effects by these names; they never change
+meaning).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Literal
 import numpy as np
 
 __all__ = [
+    "EFFECT_NAMES",
     "AmplifierDynamics",
     "Backlash",
     "DriveCompliance",
@@ -250,3 +252,41 @@ class Effects:
     sensor_delay_samples: int = 0
     computation_delay_samples: int = 0
     jitter_s: float = 0.0
+
+
+#: Every effect name, in documentation order.
+EFFECT_NAMES: tuple[str, ...] = (
+    # friction models on the table side (the nominal seed model uses Dahl)
+    "coulomb_viscous",
+    "stribeck",
+    "dahl",
+    "lugre",
+    "gms",
+    # friction phenomena
+    "asymmetric_friction",
+    "dwell_static_friction",
+    "frictional_memory",
+    "lead_periodic_friction",
+    "position_random_friction",
+    "stochastic_friction",
+    # drive train
+    "backlash",
+    "drive_compliance",
+    # drive electronics
+    "motor_inductance",
+    "amplifier_dynamics",
+    "voltage_saturation",
+    "dac_quantisation",
+    # sensors
+    "encoder_cyclic_error",
+    "encoder_noise",
+    "interferometer",
+    "sensor_delay",
+    # controller timing
+    "computation_delay",
+    "sample_jitter",
+    # external and known inputs
+    "offset_force",
+    "force_disturbance",
+    "command_disturbance",
+)

@@ -8,9 +8,10 @@ Python use one set. Confidence tags follow DOMAIN.md: ``B`` stated in the seed p
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
-from typing import Any
+from types import MappingProxyType
+from typing import Any, Final
 
 from . import _core
 from .config import (
@@ -32,7 +33,19 @@ from .config import (
 )
 from .effects import Effects, StaticFrictionMap
 
-__all__ = ["SEED_PROVENANCE", "Provenance", "seed", "seed_controller", "seed_plant", "table1_gains"]
+__all__ = [
+    "PRESETS",
+    "PRESET_CONTROLLER_KIND",
+    "PRESET_TRAVEL_M",
+    "SEED_PROVENANCE",
+    "Provenance",
+    "preset_names",
+    "preset_system",
+    "seed",
+    "seed_controller",
+    "seed_plant",
+    "table1_gains",
+]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -323,3 +336,30 @@ PRESETS: dict[str, Callable[[], System]] = {
     "emps_naive": emps_naive,
     "emps_asymmetric": lambda: emps(asymmetric=True),
 }
+
+#: The controller kind of each preset (used when a diagnosis manifest gives none).
+PRESET_CONTROLLER_KIND: Final[Mapping[str, str]] = MappingProxyType(
+    {"seed": "fpga_pid", "emps": "cascade"}
+)
+
+#: Travel of each preset's axis, m: SEED.md's 50 mm for the seed axis; 0.5 m for the EMPS
+#: (the data set spans 0.25 m). A manifest may give its own (``model.travel_m``).
+PRESET_TRAVEL_M: Final[Mapping[str, float]] = MappingProxyType(
+    {"seed": 0.05, "emps": 0.5, "emps_naive": 0.5, "emps_asymmetric": 0.5}
+)
+
+
+def preset_names() -> tuple[str, ...]:
+    """Names of the presets (what a manifest's ``model.preset`` may take), from :data:`PRESETS`."""
+    return tuple(str(k) for k in PRESETS)
+
+
+def preset_system(name: str) -> System:
+    """The :class:`nanostage.System` of the preset ``name``.
+
+    Raises
+    ------
+    KeyError
+        If there is no such preset.
+    """
+    return PRESETS[name]()

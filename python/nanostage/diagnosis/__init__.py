@@ -5,6 +5,8 @@ phases (:mod:`.segments`), gap statistics, features and spectra (:mod:`.gap`), a
 report writer (:mod:`.report`). The fitting and candidate ranking build on these.
 """
 
+from ..config import field_paths, get_path, replace_paths
+from ..presets import preset_names, preset_system
 from .gap import (
     DEFAULT_PARTITIONS,
     ExperimentGap,
@@ -36,13 +38,8 @@ from .manifest import (
     Manifest,
     ManifestError,
     ModelSpec,
-    field_paths,
-    get_path,
     load_manifest,
     load_prediction_manifest,
-    preset_names,
-    preset_system,
-    replace_paths,
 )
 from .report import (
     ReportFiles,

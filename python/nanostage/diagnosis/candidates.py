@@ -15,8 +15,8 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ..config import ForceDrivePlant, FpgaPid, Plant, System
-from ..effect_names import EFFECT_NAMES
 from ..effects import (
+    EFFECT_NAMES,
     AmplifierDynamics,
     Backlash,
     DriveCompliance,

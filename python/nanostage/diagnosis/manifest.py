@@ -71,20 +71,20 @@ error there), with experiment names that become file names
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import re
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Final, Literal
 
-from .. import presets
-from ..effect_names import EFFECT_NAMES
+from ..config import did_you_mean, field_paths, get_path, replace_paths
+from ..effects import EFFECT_NAMES
 from ..experiment import Experiment
 from ..output import OutputError, check_file_stems
+from ..presets import PRESET_CONTROLLER_KIND, PRESET_TRAVEL_M, preset_names, preset_system
 from .traces import (
     ALL_COLUMNS,
     LENGTH_UNITS,
@@ -106,7 +106,6 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = [
     "CONTROLLER_GAINS",
-    "PRESET_TRAVEL_M",
     "ROLES",
     "ControllerSpec",
     "DiagnosisSpec",
@@ -116,13 +115,8 @@ __all__ = [
     "ManifestError",
     "ModelSpec",
     "check_total_samples",
-    "field_paths",
-    "get_path",
     "load_manifest",
     "load_prediction_manifest",
-    "preset_names",
-    "preset_system",
-    "replace_paths",
 ]
 
 Role = Literal["train", "validate"]
@@ -131,16 +125,6 @@ ROLES: Final[tuple[str, ...]] = ("train", "validate")
 #: Controller kinds and the gains each takes.
 CONTROLLER_GAINS: Final[Mapping[str, tuple[str, ...]]] = MappingProxyType(
     {"fpga_pid": ("kp", "ki", "kd"), "cascade": ("kp_per_s", "kv_v_s_per_m")}
-)
-#: The controller kind of each preset (used when the manifest gives none).
-_PRESET_CONTROLLER_KIND: Final[Mapping[str, str]] = MappingProxyType(
-    {"seed": "fpga_pid", "emps": "cascade"}
-)
-
-#: Travel of each preset's axis, m: SEED.md's 50 mm for the seed axis; 0.5 m for the EMPS
-#: (the data set spans 0.25 m). A manifest may give its own (``model.travel_m``).
-PRESET_TRAVEL_M: Final[Mapping[str, float]] = MappingProxyType(
-    {"seed": 0.05, "emps": 0.5, "emps_naive": 0.5, "emps_asymmetric": 0.5}
 )
 
 _TOP_KEYS: Final = ("model", "controller", "diagnosis", "experiment")
@@ -196,123 +180,6 @@ class ManifestError(ValueError):
         if key is not None:
             parts.append(f"key {key!r}")
         super().__init__(f"{', '.join(parts)}: {message}")
-
-
-# --------------------------------------------------------------------------------------------
-# Dotted paths into the configuration dataclass tree
-# --------------------------------------------------------------------------------------------
-
-
-def preset_names() -> tuple[str, ...]:
-    """Names a manifest's ``model.preset`` may take.
-
-    ``nanostage.presets.PRESETS`` (a mapping name → zero-argument factory) is used when the
-    presets module defines it; otherwise the only preset is ``"seed"``.
-    """
-    return tuple(_preset_factories())
-
-
-def _preset_factories() -> dict[str, Callable[[], Any]]:
-    registry = getattr(presets, "PRESETS", None)
-    if isinstance(registry, Mapping):
-        return {str(k): v for k, v in registry.items()}
-    return {"seed": presets.seed}
-
-
-def preset_system(name: str) -> Any:
-    """The configuration (e.g. a :class:`nanostage.System`) of the preset ``name``.
-
-    Raises
-    ------
-    KeyError
-        If there is no such preset.
-    """
-    return _preset_factories()[name]()
-
-
-def _hint(word: str, options: Sequence[str]) -> str:
-    close = difflib.get_close_matches(word, list(options), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def get_path(obj: Any, path: str) -> Any:
-    """The value at a dotted field path, e.g. ``get_path(system, "plant.dahl.exponent")``.
-
-    Raises
-    ------
-    KeyError
-        Naming the first component that is not a field, the fields there and a close match.
-    """
-    cur = obj
-    done: list[str] = []
-    for part in path.split("."):
-        if not dataclasses.is_dataclass(cur) or isinstance(cur, type):
-            where = ".".join(done)
-            what = "is None (switched off in the preset)" if cur is None else "is a value"
-            raise KeyError(f"{where!r} {what}, not a group of fields; {path!r} goes past it")
-        names = [f.name for f in dataclasses.fields(cur)]
-        if part not in names:
-            where = ".".join(done) or "the model"
-            raise KeyError(
-                f"{where} ({type(cur).__name__}) has no field {part!r}{_hint(part, names)}; "
-                f"its fields are: {', '.join(names)}"
-            )
-        cur = getattr(cur, part)
-        done.append(part)
-    return cur
-
-
-def replace_paths(obj: Any, values: Mapping[str, Any]) -> Any:
-    """A copy of a frozen dataclass tree with the fields at dotted paths replaced.
-
-    Each dataclass on a path is rebuilt with :func:`dataclasses.replace`, so its validation
-    (``__post_init__``) runs again: invalid values raise the dataclass's error
-    (:class:`nanostage.ConfigError` for the nanostage configuration).
-
-    Parameters
-    ----------
-    obj : dataclass instance
-        The root (e.g. a :class:`nanostage.System`).
-    values : mapping of str to Any
-        Dotted path → new value.
-    """
-    for path in values:
-        get_path(obj, path)  # raise KeyError early for a bad path
-    return _replace_checked(obj, values)
-
-
-def _replace_checked(obj: Any, values: Mapping[str, Any]) -> Any:
-    """:func:`replace_paths` once every path is known to exist (checked once, at the root:
-    the diagnosis sets each experiment's controller on every model it simulates)."""
-    grouped: dict[str, dict[str, Any]] = {}
-    leaves: dict[str, Any] = {}
-    for path, value in values.items():
-        head, _, rest = path.partition(".")
-        if rest:
-            grouped.setdefault(head, {})[rest] = value
-        else:
-            leaves[head] = value
-    changes = dict(leaves)
-    for head, sub in grouped.items():
-        changes[head] = _replace_checked(getattr(obj, head), sub)
-    return dataclasses.replace(obj, **changes) if changes else obj
-
-
-def field_paths(obj: Any, *, numeric_only: bool = True) -> tuple[str, ...]:
-    """Every leaf field path of a dataclass tree (numeric leaves only by default)."""
-    out: list[str] = []
-
-    def walk(cur: Any, prefix: str) -> None:
-        for f in dataclasses.fields(cur):
-            v = getattr(cur, f.name)
-            p = f"{prefix}{f.name}"
-            if dataclasses.is_dataclass(v) and not isinstance(v, type):
-                walk(v, p + ".")
-            elif not numeric_only or (isinstance(v, int | float) and not isinstance(v, bool)):
-                out.append(p)
-
-    walk(obj, "")
-    return tuple(out)
 
 
 # --------------------------------------------------------------------------------------------
@@ -579,7 +446,7 @@ class _Ctx:
                     )
                 raise self.err(
                     where,
-                    f"unknown key{_hint(k, allowed)}; valid keys: {', '.join(allowed)}",
+                    f"unknown key{did_you_mean(k, allowed)}; valid keys: {', '.join(allowed)}",
                 )
 
     def inside(self, key: str, rel: str, base_dir: Path, what: str) -> Path:
@@ -670,7 +537,7 @@ def _parse_controller(
     if kind not in CONTROLLER_GAINS:
         raise ctx.err(
             f"{key}.kind",
-            f"unknown controller kind {kind!r}{_hint(kind, list(CONTROLLER_GAINS))}; valid "
+            f"unknown controller kind {kind!r}{did_you_mean(kind, list(CONTROLLER_GAINS))}; valid "
             f"kinds: {', '.join(CONTROLLER_GAINS)}",
         )
     controller = getattr(system, "controller", None)
@@ -704,7 +571,8 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
     if preset not in names:
         raise ctx.err(
             "model.preset",
-            f"unknown preset {preset!r}{_hint(preset, names)}; valid presets: {', '.join(names)}",
+            f"unknown preset {preset!r}"
+            f"{did_you_mean(preset, names)}; valid presets: {', '.join(names)}",
         )
     root = preset_system(preset)
 
@@ -760,7 +628,7 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
         if path not in free:
             raise ctx.err(
                 key,
-                f"bounds for {path!r}, which is not in model.free{_hint(path, free)}",
+                f"bounds for {path!r}, which is not in model.free{did_you_mean(path, free)}",
             )
         if not (isinstance(value, list) and len(value) == 2):
             raise ctx.err(key, f"expected [lower, upper], got {_tname(value)}")
@@ -821,7 +689,7 @@ def _parse_diagnosis(ctx: _Ctx, raw: Any) -> DiagnosisSpec:
             if name not in EFFECT_NAMES:
                 raise ctx.err(
                     key,
-                    f"unknown effect {name!r}{_hint(name, EFFECT_NAMES)}; valid effects: "
+                    f"unknown effect {name!r}{did_you_mean(name, EFFECT_NAMES)}; valid effects: "
                     f"{', '.join(EFFECT_NAMES)}",
                 )
             if name in out:
@@ -874,7 +742,7 @@ def _parse_experiment(
         else:
             raise ctx.err(
                 f"{key}.role",
-                f"experiment {name!r}: unknown role {r!r}{_hint(r, ROLES)}; valid roles: "
+                f"experiment {name!r}: unknown role {r!r}{did_you_mean(r, ROLES)}; valid roles: "
                 f"{', '.join(ROLES)}",
             )
     valid = ALL_COLUMNS if ctx.purpose == "diagnose" else PREDICTION_COLUMNS
@@ -888,7 +756,7 @@ def _parse_experiment(
                 raise ctx.err(
                     ckey,
                     f"experiment {name!r}: unknown standard column {std!r}"
-                    f"{_hint(std, valid)}; valid: {', '.join(valid)} (the map is "
+                    f"{did_you_mean(std, valid)}; valid: {', '.join(valid)} (the map is "
                     "{standard name = name in the file})",
                 )
             columns[std] = ctx.string(fname, ckey)
@@ -935,7 +803,8 @@ def _parse_units(
         if raw not in LENGTH_UNITS:
             raise ctx.err(
                 key,
-                f"experiment {name!r}: unknown length unit {raw!r}{_hint(raw, list(LENGTH_UNITS))}"
+                f"experiment {name!r}: unknown length unit {raw!r}"
+                f"{did_you_mean(raw, list(LENGTH_UNITS))}"
                 f"; valid: {', '.join(LENGTH_UNITS)} (for {', '.join(lengths)}; or a table "
                 'such as { position_m = "mm", time_s = "ms" })',
             )
@@ -949,7 +818,8 @@ def _parse_units(
         if std not in cols:
             raise ctx.err(
                 ukey,
-                f"experiment {name!r}: no unit can be declared for {std!r}{_hint(std, cols)}; "
+                f"experiment {name!r}: no unit can be declared for {std!r}"
+                f"{did_you_mean(std, cols)}; "
                 f"units apply to {', '.join(cols)} (other columns are in the unit their name "
                 "says)",
             )
@@ -958,7 +828,8 @@ def _parse_units(
         if u not in options:
             raise ctx.err(
                 ukey,
-                f"experiment {name!r}: unknown unit {u!r} for {std}{_hint(u, list(options))}; "
+                f"experiment {name!r}: unknown unit {u!r} for {std}"
+                f"{did_you_mean(u, list(options))}; "
                 f"valid: {', '.join(options)}",
             )
         out[std] = u
@@ -1071,7 +942,7 @@ def _load(
                     "a diagnosis table: nanostage predict does not use it; remove it "
                     f"(valid: {', '.join(top)})",
                 )
-            hint = _hint(k, top)
+            hint = did_you_mean(k, top)
             if k == "experiments":
                 hint = " (did you mean [[experiment]]?)"
             raise ctx.err(k, f"unknown table{hint}; valid: {', '.join(top)}")
@@ -1081,7 +952,7 @@ def _load(
     have = {f.name for f in dataclasses.fields(system.controller)}
     default_kind = next(
         (k for k, g in CONTROLLER_GAINS.items() if set(g) <= have),
-        _PRESET_CONTROLLER_KIND.get(model.preset, "fpga_pid"),
+        PRESET_CONTROLLER_KIND.get(model.preset, "fpga_pid"),
     )
     controller = _parse_controller(
         ctx, data.get("controller", {}), "controller", None, default_kind, system

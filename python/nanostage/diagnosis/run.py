@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import System
+from ..config import System, get_path, replace_paths
 from ..experiment import Experiment
 from ..output import check_output_dir, staged_output
 from .candidates import CANDIDATES, Param, applicable_candidates
@@ -48,7 +48,7 @@ from .engine import (
     simulate_readings_and_commands,
 )
 from .gap import analyse_gap
-from .manifest import Manifest, get_path, load_manifest, replace_paths
+from .manifest import Manifest, load_manifest
 from .report import write_report
 from .segments import segment
 

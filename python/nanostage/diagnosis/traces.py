@@ -73,7 +73,6 @@ from __future__ import annotations
 import codecs
 import csv
 import dataclasses
-import difflib
 import math
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -86,6 +85,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .._core import ConfigError
+from ..config import did_you_mean
 from ..experiment import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, Experiment
 
 __all__ = [
@@ -352,11 +352,6 @@ class _Table:
         )
 
 
-def _hint(word: str, options: Sequence[str]) -> str:
-    close = difflib.get_close_matches(word, list(options), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
 def _check_map(file: str, columns: Mapping[str, str] | None, schema: _Schema) -> dict[str, str]:
     """The column map, validated: standard name → name in the file (identity if absent)."""
     valid = schema.columns
@@ -366,7 +361,7 @@ def _check_map(file: str, columns: Mapping[str, str] | None, schema: _Schema) ->
     for std, fname in columns.items():
         if std not in valid:
             raise TraceError(
-                f"unknown column {std!r} in the column map{_hint(std, valid)}; the standard "
+                f"unknown column {std!r} in the column map{did_you_mean(std, valid)}; the standard "
                 f"columns are {', '.join(valid)} (the map is {{standard name: name in the "
                 "file}})",
                 file=file,
@@ -401,7 +396,7 @@ def _check_units(
     if isinstance(units, str):
         if units not in LENGTH_UNITS:
             raise TraceError(
-                f"unknown length unit {units!r}{_hint(units, list(LENGTH_UNITS))}; valid: "
+                f"unknown length unit {units!r}{did_you_mean(units, list(LENGTH_UNITS))}; valid: "
                 f"{', '.join(LENGTH_UNITS)} (applies to {', '.join(lengths)})",
                 file=file,
             )
@@ -416,14 +411,14 @@ def _check_units(
         else:
             valid = ["time_s", *lengths]
             raise TraceError(
-                f"no unit can be declared for {std!r}{_hint(std, valid)}; units apply to "
+                f"no unit can be declared for {std!r}{did_you_mean(std, valid)}; units apply to "
                 f"{', '.join(valid)} (other columns are in the unit their name says)",
                 file=file,
                 column=std,
             )
         if not isinstance(unit, str) or unit not in table:
             raise TraceError(
-                f"unknown unit {unit!r} for {std}{_hint(str(unit), list(table))}; valid: "
+                f"unknown unit {unit!r} for {std}{did_you_mean(str(unit), list(table))}; valid: "
                 f"{', '.join(table)}",
                 file=file,
                 column=std,
@@ -469,7 +464,8 @@ def _select(
         unknown = [a for a in available if a not in used]
         if unknown:
             raise TraceError(
-                f"unknown column(s) {short_names(unknown)}{_hint(unknown[0], schema.columns)}; "
+                f"unknown column(s) {short_names(unknown)}"
+                f"{did_you_mean(unknown[0], schema.columns)}; "
                 f"valid: {', '.join(schema.columns)}",
                 file=file,
                 line=line,

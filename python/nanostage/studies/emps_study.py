@@ -17,8 +17,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from .. import presets
-from ..config import ForceDrivePlant, System
-from ..diagnosis.manifest import get_path, replace_paths
+from ..config import ForceDrivePlant, System, get_path, replace_paths
 from ..experiment import Experiment
 from ..output import check_output_dir, staged_output, write_json
 from ..simulate import Trace, simulate
