@@ -35,15 +35,17 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Final, Literal, Protocol, TextIO
+from typing import Any, Final, Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from . import _core, iso230_2
 from ._core import ConfigError
+from .checks import int_arg
 from .config import System
 from .cycles import Cycle
+from .output import ProgressBar
 
 __all__ = [
     "MAX_THREADS",
@@ -63,8 +65,6 @@ MAX_TRIALS: Final[int] = 1 << 32
 MAX_THREADS: Final[int] = 1024
 #: Seconds between two progress-bar updates.
 _REFRESH_S: Final[float] = 0.1
-#: Width of the progress bar in characters.
-_BAR_WIDTH: Final[int] = 30
 
 Reading = Literal["position", "encoder"]
 
@@ -292,14 +292,14 @@ class CampaignResult:
 
 #: Seconds between two checks of a pool worker that the process it works for still runs.
 _PARENT_POLL_S: Final[float] = 0.2
-#: The process a worker process of this module watches (see :func:`_watch_parent`).
+#: The process a worker process of this module watches (see :func:`watch_parent`).
 _watched_parent: int | None = None
 #: The stop request of the chunks this process runs for an executor (a worker process stops
 #: them when its parent is gone).
 _worker_control = _core.CampaignControl()
 
 
-def _watch_parent(parent_pid: int) -> None:
+def watch_parent(parent_pid: int) -> None:
     """In a worker process started by the campaign's own process (a process pool), exit
     when that process is gone, so that a campaign killed by SIGTERM or SIGKILL does not leave
     its pool's workers behind (they would otherwise wait for work for ever). Does nothing in
@@ -335,11 +335,11 @@ def _run_chunk(
     Top level so that it pickles. Returns the core's dict: ``position_m``, ``encoder_m``
     (shape ``(stop - start, n_measurements)``), ``status``, and the ``failed_*`` entries.
     ``parent_pid``: the process running the campaign; a pool worker it started exits when
-    that process is gone (:func:`_watch_parent`). ``control``: the campaign's stop request and
+    that process is gone (:func:`watch_parent`). ``control``: the campaign's stop request and
     progress counter (default: the one of this process's executor chunks).
     """
     if parent_pid is not None:
-        _watch_parent(int(parent_pid))
+        watch_parent(int(parent_pid))
     return _core.campaign_run(
         system,
         np.ascontiguousarray(cycle_reference, dtype=np.float64),
@@ -350,15 +350,6 @@ def _run_chunk(
         int(threads),
         control=_worker_control if control is None else control,
     )
-
-
-def _int_arg(name: str, value: object, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an int, not {type(value).__name__}")
-    v = int(value)
-    if not lo <= v <= hi:
-        raise ConfigError(f"{name} = {v} is invalid: expected an integer in [{lo}, {hi}]")
-    return v
 
 
 def _check_memory(n_trials: int, n_measure: int) -> None:
@@ -374,40 +365,6 @@ def _check_memory(n_trials: int, n_measure: int) -> None:
         )
 
 
-class _Bar:
-    """A one-line text progress bar on a stream (no dependency)."""
-
-    def __init__(
-        self, total: int, stream: TextIO | None, label: str, *, unit: str = "trials"
-    ) -> None:
-        self.total = total
-        self.stream = stream
-        self.label = label
-        self.unit = unit
-        self.t0 = time.perf_counter()
-        self.last = -1
-        self.last_write = -math.inf
-
-    def update(self, done: int, *, final: bool = False, suffix: str = "") -> None:
-        if self.stream is None or (done == self.last and not final):
-            return
-        now = time.perf_counter()
-        if not final and now - self.last_write < _REFRESH_S:
-            return
-        self.last = done
-        self.last_write = now
-        frac = min(1.0, done / self.total) if self.total else 1.0
-        filled = round(frac * _BAR_WIDTH)
-        elapsed = time.perf_counter() - self.t0
-        rate = done / elapsed if elapsed > 0 else 0.0
-        self.stream.write(
-            f"\r{self.label} [{'#' * filled}{'.' * (_BAR_WIDTH - filled)}] "
-            f"{done}/{self.total} {self.unit}, {elapsed:.1f} s, {rate:.1f} {self.unit}/s{suffix}"
-            + ("\n" if final else "")
-        )
-        self.stream.flush()
-
-
 def _chunks(n_trials: int, chunk_trials: int) -> list[tuple[int, int]]:
     return [(a, min(a + chunk_trials, n_trials)) for a in range(0, n_trials, chunk_trials)]
 
@@ -418,7 +375,7 @@ def _run_local(
     bounds: Sequence[tuple[int, int]],
     seed: int,
     threads: int,
-    bar: _Bar,
+    bar: ProgressBar,
     control: _core.CampaignControl,
 ) -> list[dict[str, Any]]:
     """Run the chunks one after the other on a worker thread; the calling thread shows the
@@ -467,7 +424,7 @@ def _run_executor(
     seed: int,
     threads: int,
     executor: _Submitter,
-    bar: _Bar,
+    bar: ProgressBar,
 ) -> list[dict[str, Any]]:
     me = os.getpid()
     futures: list[_Future] = []
@@ -559,16 +516,16 @@ def run_campaign(
     """
     if not isinstance(cycle, Cycle):
         raise TypeError(f"cycle must be a nanostage.cycles.Cycle, not {type(cycle).__name__}")
-    n = _int_arg("n_trials", n_trials, 1, MAX_TRIALS)
-    s = _int_arg("seed", seed, 0, 2**64 - 1)
+    n = int_arg("n_trials", n_trials, 1, MAX_TRIALS)
+    s = int_arg("seed", seed, 0, 2**64 - 1)
     if threads is None:
         n_threads = 1 if executor is not None else max(1, os.cpu_count() or 1)
     else:
-        n_threads = _int_arg("threads", threads, 1, MAX_THREADS)
+        n_threads = int_arg("threads", threads, 1, MAX_THREADS)
     if chunk_trials is None:
         chunk = n if executor is None else max(1, math.ceil(n / 32))
     else:
-        chunk = _int_arg("chunk_trials", chunk_trials, 1, n)
+        chunk = int_arg("chunk_trials", chunk_trials, 1, n)
     if cycle.n_measurements == 0:
         raise ConfigError("cycle is invalid: it has no measurement instants")
     if executor is not None and not callable(getattr(executor, "submit", None)):
@@ -579,7 +536,7 @@ def run_campaign(
     _core.validate_system(system)
     _check_memory(n, cycle.n_measurements)
     bounds = _chunks(n, chunk)
-    bar = _Bar(n, sys.stderr if progress else None, "campaign")
+    bar = ProgressBar(n, sys.stderr if progress else None, "campaign")
     t0 = time.perf_counter()
     if executor is None:
         ctl = _core.CampaignControl() if control is None else control

@@ -297,7 +297,8 @@ def _emps(args: argparse.Namespace) -> int:
 
 def _tune(args: argparse.Namespace) -> int:
     from . import presets
-    from .campaign import MAX_TRIALS, _int_arg
+    from .campaign import MAX_TRIALS
+    from .checks import int_arg
     from .studies.paper_campaigns import check_threads
     from .tune import (
         Objective,
@@ -329,7 +330,7 @@ def _tune(args: argparse.Namespace) -> int:
         tuning_cycle(step)
     check_search(args.trials, args.seed, args.popsize, args.maxiter)
     if args.eval_trials is not None:
-        _int_arg("eval_trials", args.eval_trials, 1, MAX_TRIALS)
+        int_arg("eval_trials", args.eval_trials, 1, MAX_TRIALS)
     check_threads(args.threads)
     check_output_dir(args.out)
     report = tune_table1(

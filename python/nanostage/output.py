@@ -25,17 +25,20 @@ import os
 import re
 import secrets
 import shutil
+import time
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, TextIO
 
 import numpy as np
 
 __all__ = [
+    "PROGRESS_REFRESH_S",
     "RUN_MANIFEST",
     "OutputError",
+    "ProgressBar",
     "check_file_stems",
     "check_output_dir",
     "staged_output",
@@ -45,6 +48,11 @@ __all__ = [
 
 RUN_MANIFEST: Final = "nanostage-run.json"
 """The file a finished run writes last into its output folder: the command and its files."""
+
+#: Seconds between two progress-bar updates.
+PROGRESS_REFRESH_S: Final[float] = 0.1
+#: Width of the progress bar in characters.
+_BAR_WIDTH: Final[int] = 30
 
 _STEM: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 
@@ -213,3 +221,37 @@ def staged_output(out: str | Path, command: str) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+class ProgressBar:
+    """A one-line text progress bar on a stream (no dependency)."""
+
+    def __init__(
+        self, total: int, stream: TextIO | None, label: str, *, unit: str = "trials"
+    ) -> None:
+        self.total = total
+        self.stream = stream
+        self.label = label
+        self.unit = unit
+        self.t0 = time.perf_counter()
+        self.last = -1
+        self.last_write = -math.inf
+
+    def update(self, done: int, *, final: bool = False, suffix: str = "") -> None:
+        if self.stream is None or (done == self.last and not final):
+            return
+        now = time.perf_counter()
+        if not final and now - self.last_write < PROGRESS_REFRESH_S:
+            return
+        self.last = done
+        self.last_write = now
+        frac = min(1.0, done / self.total) if self.total else 1.0
+        filled = round(frac * _BAR_WIDTH)
+        elapsed = time.perf_counter() - self.t0
+        rate = done / elapsed if elapsed > 0 else 0.0
+        self.stream.write(
+            f"\r{self.label} [{'#' * filled}{'.' * (_BAR_WIDTH - filled)}] "
+            f"{done}/{self.total} {self.unit}, {elapsed:.1f} s, {rate:.1f} {self.unit}/s{suffix}"
+            + ("\n" if final else "")
+        )
+        self.stream.flush()

@@ -61,11 +61,12 @@ from scipy.optimize import differential_evolution
 
 from . import presets
 from ._core import ConfigError
-from .campaign import CampaignResult, _Bar, _int_arg, _watch_parent, run_campaign
+from .campaign import CampaignResult, run_campaign, watch_parent
+from .checks import int_arg
 from .config import AntiWindup, FpgaPid, System
 from .cycles import Cycle, step_cycle
 from .effects import StochasticFriction
-from .output import staged_output, write_json
+from .output import ProgressBar, staged_output, write_json
 
 __all__ = [
     "ANTI_WINDUP_OPTIONS",
@@ -663,7 +664,7 @@ class _Evaluator:
         self.parent_pid = os.getpid()
 
     def __call__(self, key: tuple[float, float, float, AntiWindup]) -> Candidate:
-        _watch_parent(self.parent_pid)
+        watch_parent(self.parent_pid)
         kp, ki, kd, aw = key
         sys_c = _with_candidate(self.system, kp, ki, kd, aw)
         res = run_campaign(
@@ -715,10 +716,10 @@ def check_search(n_trials: int, seed: int, popsize: int, maxiter: int) -> tuple[
         A setting outside its range (see :func:`tune`).
     """
     return (
-        _int_arg("n_trials", n_trials, 1, 100_000),
-        _int_arg("seed", seed, 0, 2**32 - 1),
-        _int_arg("popsize", popsize, 4, 100),
-        _int_arg("maxiter", maxiter, 1, 10_000),
+        int_arg("n_trials", n_trials, 1, 100_000),
+        int_arg("seed", seed, 0, 2**32 - 1),
+        int_arg("popsize", popsize, 4, 100),
+        int_arg("maxiter", maxiter, 1, 10_000),
     )
 
 
@@ -794,9 +795,7 @@ def tune(
     ctl = _fpga(system)
     space.check_format(ctl)
     n_trials, seed, popsize, maxiter = check_search(n_trials, seed, popsize, maxiter)
-    cseed = (
-        seed if campaign_seed is None else _int_arg("campaign_seed", campaign_seed, 0, 2**64 - 1)
-    )
+    cseed = seed if campaign_seed is None else int_arg("campaign_seed", campaign_seed, 0, 2**64 - 1)
     tol_v = _finite_nonneg("tol", tol)
     if tol_v > 1.0:
         raise _bad("tol", tol, "a number in [0, 1]")
@@ -821,7 +820,7 @@ def tune(
     order: list[tuple[float, float, float, AntiWindup]] = []
     n_calls = 0
     total = popsize * len(bounds) * (maxiter + 1) + 1
-    bar = _Bar(total, sys.stderr if progress else None, "tune", unit="candidates")
+    bar = ProgressBar(total, sys.stderr if progress else None, "tune", unit="candidates")
 
     def remember(c: Candidate) -> Candidate:
         key = (c.kp, c.ki, c.kd, c.anti_windup)

@@ -450,7 +450,7 @@ def _uncertainty(sol: Any, params: Sequence[tuple[str, Param]]) -> tuple[list[fl
     dof = max(n - k, 1)
     # Residual samples are autocorrelated: inflate the variance by the integrated
     # autocorrelation time (in samples) of the residual.
-    s2 = 2.0 * float(sol.cost) / dof * _autocorrelation_time(np.asarray(sol.fun))
+    s2 = 2.0 * float(sol.cost) / dof * autocorrelation_time(np.asarray(sol.fun))
     try:
         cov = np.linalg.pinv(jac.T @ jac) * s2
     except np.linalg.LinAlgError:
@@ -606,7 +606,7 @@ def align_holds(
     return out
 
 
-def _autocorrelation_time(r: FloatArray, max_lag: int = 500) -> float:
+def autocorrelation_time(r: FloatArray, max_lag: int = 500) -> float:
     """Integrated autocorrelation time ``1 + 2·Σρ(k)``, summed until ρ first drops below 0."""
     r = r - float(np.mean(r))
     var = float(np.dot(r, r))

@@ -116,7 +116,7 @@ def output_error_fit(
     emulation's 0.004 V rms) against the simulation, starting from ``system`` (default: the
     authors' symmetric model). Standard errors from the Jacobian, inflated by the residual's
     integrated autocorrelation time."""
-    from ..diagnosis.engine import _autocorrelation_time
+    from ..diagnosis.engine import autocorrelation_time
 
     base = system or presets.emps()
     e = experiment or data.experiment
@@ -167,7 +167,7 @@ def output_error_fit(
     )
     jac = sol.jac
     dof = max(len(sol.fun) - len(names), 1)
-    s2 = 2.0 * sol.cost / dof * _autocorrelation_time(np.asarray(sol.fun))
+    s2 = 2.0 * sol.cost / dof * autocorrelation_time(np.asarray(sol.fun))
     cov = np.linalg.pinv(jac.T @ jac) * s2
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * width
     values = {k: float(v) for k, v in zip(names, physical(sol.x), strict=True)}
