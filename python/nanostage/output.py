@@ -25,8 +25,8 @@ import os
 import re
 import secrets
 import shutil
-import time
 import tempfile
+import time
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
