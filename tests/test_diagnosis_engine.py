@@ -39,33 +39,29 @@ from nanostage.diagnosis.candidates import (
     gms_spread,
     motor_static_force_n,
 )
-from nanostage.diagnosis.engine import (
+from nanostage.diagnosis.fit import Fit, FitProblem
+from nanostage.diagnosis.loop import (
     FRICTION_MODELS,
-    CandidateResult,
-    DiagnosisSettings,
-    Fit,
-    FitProblem,
-    SimulationCache,
-    _best_shift,
     _Ctx,
     _judge,
     _refit_control,
     _verdict,
     crossfit_folds,
     crossfit_models,
+    refine_names,
+)
+from nanostage.diagnosis.manifest import load_manifest
+from nanostage.diagnosis.objective import (
+    SimulationCache,
+    _best_shift,
     experiment_floors_m,
     experiment_kind,
     gap_residual,
     hold_intervals,
-    log_occam_factor,
     move_units,
     noise_floor_m,
-    pick_winner,
-    refine_names,
     simulate_readings_and_commands,
-    with_starts,
 )
-from nanostage.diagnosis.manifest import load_manifest
 from nanostage.diagnosis.run import (
     best_single,
     diagnose,
@@ -73,6 +69,8 @@ from nanostage.diagnosis.run import (
     model_gap,
     ties_of_selected,
 )
+from nanostage.diagnosis.select import CandidateResult, log_occam_factor, pick_winner
+from nanostage.diagnosis.settings import DiagnosisSettings, with_starts
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effects import (
     EFFECT_NAMES,
@@ -194,7 +192,7 @@ def test_batched_evaluations_equal_one_at_a_time(
     scan's points are simulated as one batch: every point's residuals are bit for bit those
     of evaluating it alone, an invalid point among them is still the failed gap, and a whole
     fit takes the same path as with scipy's own one-at-a-time evaluation."""
-    import nanostage.diagnosis.engine as eng
+    import nanostage.diagnosis.fit as eng
 
     m = _case(tmp_path, Effects(), seed=6)
     man = load_manifest(m)
@@ -880,7 +878,7 @@ def test_crossfit_models_fit_on_everything_but_the_judged_experiments(
     """The refits of the cross-fit: per fold, the nominal and the selected model are fitted
     on exactly the experiments the fold does not judge, the selected model with the free
     parameters and the effect's own, warm-started at the given values."""
-    import nanostage.diagnosis.engine as eng
+    import nanostage.diagnosis.fit as eng
 
     m = _case(tmp_path, Effects(), seed=6)
     man = load_manifest(m)
@@ -1278,7 +1276,7 @@ def test_scan_starts_fit_from_the_next_best_scanned_points(
     """With ``scan_starts`` = 3 the local fits start from the warm start and the three best
     scanned points that beat it (best first); with 1, from the best only. The gap here is a
     synthetic bowl (no simulation), so the scan's costs are known exactly."""
-    import nanostage.diagnosis.engine as eng
+    import nanostage.diagnosis.fit as eng
 
     seed_system = presets.seed(1e-3)
     target = np.array([1.2, 1.7])

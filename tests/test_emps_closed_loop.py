@@ -165,8 +165,8 @@ def test_diagnosis_on_real_data_from_the_naive_model(data: EmpsData, tmp_path: P
     """The manifest cuts DATA_EMPS into time windows (train 1 and 3, validate 2 and 4); from
     mass + viscous friction only, the diagnosis first adds Coulomb friction, and the model
     it selects simulates the measured force better than the naive one."""
-    from nanostage.diagnosis.engine import DiagnosisSettings
     from nanostage.diagnosis.run import diagnose
+    from nanostage.diagnosis.settings import DiagnosisSettings
     from nanostage.studies.emps_study import write_manifest
 
     m = write_manifest(

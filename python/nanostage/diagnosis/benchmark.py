@@ -49,9 +49,9 @@ from ..experiment import Experiment
 from ..output import check_output_dir, staged_output, write_json
 from ..simulate import simulate
 from .candidates import motor_static_force_n
-from .engine import DiagnosisSettings
 from .manifest import load_manifest
 from .run import diagnose, model_gap
+from .settings import DiagnosisSettings
 from .traces import write_trace_csv
 
 __all__ = [

@@ -35,22 +35,15 @@ from ..config import System, get_path, replace_paths
 from ..experiment import Experiment
 from ..output import check_output_dir, staged_output
 from .candidates import CANDIDATES, Param, applicable_candidates
-from .engine import (
-    CandidateResult,
-    DiagnosisSettings,
-    Fit,
-    SimulationCache,
-    _progress,
-    align_holds,
-    crossfit_models,
-    diagnose_experiments,
-    indistinguishable,
-    simulate_readings_and_commands,
-)
+from .fit import Fit
 from .gap import analyse_gap
+from .loop import crossfit_models, diagnose_experiments
 from .manifest import Manifest, load_manifest
+from .objective import SimulationCache, align_holds, simulate_readings_and_commands
 from .report import write_report
 from .segments import segment
+from .select import CandidateResult, indistinguishable
+from .settings import DiagnosisSettings, print_progress
 
 __all__ = [
     "DISTINGUISHING_EXPERIMENT",
@@ -446,12 +439,12 @@ def _crossfit(
 ) -> dict[str, Any] | None:
     """The report's ``crossfit``: the validation gap of the nominal and of the selected
     model when each validation experiment is judged by models refitted on all the other
-    experiments (:func:`~nanostage.diagnosis.engine.crossfit_models`); None when it is off,
+    experiments (:func:`~nanostage.diagnosis.loop.crossfit_models`); None when it is off,
     nothing was selected (the shrink is 0) or the manifest has several folds (then every
     fold already trains on all but its validation experiments)."""
     if st.crossfit_folds <= 0 or not out["selected"] or len(setup.folds) != 1:
         return None
-    _progress(
+    print_progress(
         f"diagnosis: cross-fitting the nominal and the selected model "
         f"({st.crossfit_folds} folds of the validation experiments)",
         progress,

@@ -116,7 +116,7 @@ def output_error_fit(
     emulation's 0.004 V rms) against the simulation, starting from ``system`` (default: the
     authors' symmetric model). Standard errors from the Jacobian, inflated by the residual's
     integrated autocorrelation time."""
-    from ..diagnosis.engine import autocorrelation_time
+    from ..diagnosis.objective import autocorrelation_time
 
     base = system or presets.emps()
     e = experiment or data.experiment

@@ -1,0 +1,311 @@
+"""Fitting one model to the training experiments: :class:`FitProblem` (multi-start least
+squares over the free parameters and a candidate's effect parameters) and its result
+:class:`Fit`."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import qmc
+
+from ..config import System
+from ..experiment import Experiment
+from .candidates import Param
+from .objective import (
+    HoldPlan,
+    SimulationCache,
+    apply_gap_plan,
+    autocorrelation_time,
+    gap_plan,
+    rms_of,
+    simulate_readings_and_commands,
+)
+from .settings import FAILED_GAP_M, Adapt, DiagnosisSettings, FloatArray
+
+__all__ = [
+    "Fit",
+    "FitProblem",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Fit:
+    """A fitted model: its parameter values (dotted paths of free nominal parameters and
+    ``effect.param`` names), standard errors, training RMS gap and the system."""
+
+    values: dict[str, float]
+    std_errors: dict[str, float]
+    train_rms_m: float
+    n_evaluations: int
+    system: System = field(repr=False)
+    #: Covariance of the fitted parameters (in the order of ``values``) in normalised
+    #: coordinates, where each parameter's bounds span 1 (log space for a log parameter);
+    #: the standard errors are its diagonal in physical units. A direction the data do not
+    #: constrain has variance 0 (a pseudo-inverse), not ∞.
+    unit_covariance: FloatArray = field(
+        default_factory=lambda: np.zeros((0, 0)), repr=False, compare=False
+    )
+
+
+class FitProblem:
+    """Least-squares fit of some parameters of a system to experiments, simulation in the
+    loop. ``build(values)`` turns physical parameter values into a system."""
+
+    def __init__(
+        self,
+        params: Sequence[tuple[str, Param]],
+        build: Callable[[Sequence[float]], System],
+        experiments: Sequence[Experiment],
+        threads: int,
+        adapt: Adapt,
+        cache: SimulationCache | None = None,
+    ) -> None:
+        self.params = list(params)
+        self.build = build
+        self.experiments = list(experiments)
+        #: Simulation threads of each batch (0: one per CPU).
+        self.threads = threads
+        self.adapt = adapt
+        #: Simulations seen before (shared by the problems of one diagnosis), or None.
+        self.cache = cache
+        self.n_evaluations = 0
+        self.scale_m = 1e-7
+        #: :func:`gap_plan` of each experiment (by name), computed on first use.
+        self._plans: dict[str, list[HoldPlan]] = {}
+
+    def residuals(self, system: System, experiments: Sequence[Experiment]) -> list[FloatArray]:
+        """Per-experiment gap (measured − simulated mean reading)."""
+        return self.residuals_of([system], experiments)[0]
+
+    def residuals_and_commands(
+        self, system: System, experiments: Sequence[Experiment]
+    ) -> tuple[list[FloatArray], list[float | None]]:
+        """:meth:`residuals`, and each experiment's mean-square command residual (V², None
+        where the experiment has no measured command)."""
+        return self._simulate([system], experiments)[0]
+
+    def residuals_of(
+        self, systems: Sequence[System], experiments: Sequence[Experiment]
+    ) -> list[list[FloatArray]]:
+        """:meth:`residuals` of several systems, all their simulations in one batch of the
+        core."""
+        return [gaps for gaps, _ in self._simulate(systems, experiments)]
+
+    def _simulate(
+        self, systems: Sequence[System], experiments: Sequence[Experiment]
+    ) -> list[tuple[list[FloatArray], list[float | None]]]:
+        n = len(experiments)
+        pairs = [(self.adapt(s, e), e) for s in systems for e in experiments]
+        simulate = simulate_readings_and_commands if self.cache is None else self.cache.simulate
+        sims = simulate([a for a, _ in pairs], [e for _, e in pairs], self.threads)
+        out = []
+        for j in range(len(systems)):
+            gaps: list[FloatArray] = []
+            command: list[float | None] = []
+            for e, (reading, cmd) in zip(experiments, sims[j * n : (j + 1) * n], strict=True):
+                if e.name not in self._plans:
+                    self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
+                gaps.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
+                command.append(
+                    None if e.command_v is None else float(np.mean((e.command_v - cmd) ** 2))
+                )
+            out.append((gaps, command))
+        return out
+
+    def _failed_vector(self) -> FloatArray:
+        # A failed simulation (or an invalid combination, e.g. a Coulomb level above the
+        # static one) is a very bad fit, not a crash: a gap of 1 mm in every sample, far
+        # worse than any valid model (the residuals are in counts).
+        return np.concatenate(
+            [
+                np.full(len(e.time_s), FAILED_GAP_M / (self.scale_m * math.sqrt(len(e.time_s))))
+                for e in self.experiments
+            ]
+        )
+
+    def _scaled(self, res: Sequence[FloatArray]) -> FloatArray:
+        # In counts (well-scaled for the optimiser's tolerances), each experiment weighted by
+        # 1/√n so that it contributes its mean square.
+        return np.concatenate([r / (self.scale_m * math.sqrt(len(r))) for r in res])
+
+    def _vector(self, u: FloatArray) -> FloatArray:
+        return self._vectors([u])[0]
+
+    def _vectors(self, us: Sequence[FloatArray]) -> list[FloatArray]:
+        """The scaled residual vector at each normalised point of ``us``, every valid
+        point's simulations in one batch. Equal, point by point, to evaluating the points
+        one at a time (each simulation depends only on its own system and experiment)."""
+        self.n_evaluations += len(us)
+        systems: list[System | None] = []
+        for u in us:
+            values = [p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, u, strict=True)]
+            try:
+                systems.append(self.build(values))
+            except ValueError:
+                systems.append(None)
+        it = iter(self.residuals_or_none([s for s in systems if s is not None]))
+        out = []
+        for maybe in systems:
+            r = None if maybe is None else next(it)
+            out.append(self._failed_vector() if r is None else self._scaled(r))
+        return out
+
+    def residuals_or_none(self, systems: Sequence[System]) -> list[list[FloatArray] | None]:
+        """:meth:`residuals_of` on the problem's experiments, None for a system whose
+        simulation fails. One failed run fails its whole batch: the batch is then run again
+        one system at a time to tell which."""
+        try:
+            return list(self.residuals_of(systems, self.experiments))
+        except (RuntimeError, ValueError):
+            if len(systems) == 1:
+                return [None]
+            return [self.residuals_or_none([s])[0] for s in systems]
+
+    def _batch_map(
+        self, fun: Callable[[FloatArray], FloatArray], points: Iterable[FloatArray]
+    ) -> list[FloatArray]:
+        """The map-like ``workers`` of :func:`scipy.optimize.least_squares`: its
+        finite-difference points (one per parameter) evaluated as one batch. ``fun`` is
+        scipy's wrapper of :meth:`_vector`, which this evaluates directly."""
+        del fun
+        return self._vectors(list(points))
+
+    def fit(
+        self,
+        n_starts: int,
+        settings: DiagnosisSettings,
+        seed: int,
+        n_warm: int = 0,
+        prior: Sequence[float] | None = None,
+        scan: int = 0,
+        scan_starts: int = 1,
+    ) -> Fit:
+        """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates. The
+        first start is every parameter's ``initial``; with ``prior`` (physical values, e.g.
+        the preset's values of warm-started parameters) the second start is ``prior``; the
+        others draw the parameters after the first ``n_warm`` (which keep their initial,
+        warm values) by Latin hypercube. With ``scan`` > 0, the gap is first evaluated at
+        ``scan`` Latin-hypercube points of the drawn parameters (all of them without warm
+        ones), and the
+        best of them (if better than the warm start) is fitted first: instead of the warm
+        start when only one start is allowed, else right after it. ``scan_starts`` > 1 adds
+        the next best scanned points (better than the warm start) as further starts."""
+        k = len(self.params)
+        self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
+        if k == 0:
+            system = self.build([])
+            res = self.residuals(system, self.experiments)
+            return Fit(
+                values={},
+                std_errors={},
+                train_rms_m=rms_of(res),
+                n_evaluations=1,
+                system=system,
+            )
+        first = np.array([1.0 + p.to_unit(p.initial) for _, p in self.params])
+        starts = [first]
+        if prior is not None:
+            second = np.array(
+                [1.0 + p.to_unit(v) for (_, p), v in zip(self.params, prior, strict=True)]
+            )
+            if not np.allclose(second, first):
+                starts.append(second)
+        n_draw = k - n_warm if k > n_warm else k
+        if scan > 0 and n_draw > 0:
+            # A coarse global look at the drawn (effect) parameters before the local fits:
+            # the closed loop's gap is rugged, and a start far from the right basin can end
+            # in a poor local optimum. The best scanned point replaces the warm start when
+            # it is better, else it becomes the next start.
+            rows = qmc.LatinHypercube(d=n_draw, seed=seed + 7919).random(scan)
+            cands = []
+            for row in rows:
+                u = first.copy()
+                u[k - n_draw :] = 1.0 + row
+                cands.append(u)
+            costs = [float(np.sum(v**2)) for v in self._vectors([first, *cands])]
+            # The best `scan_starts` scanned points that beat the warm start, best first.
+            best_scanned = [
+                cands[i - 1]
+                for i in np.argsort(costs, kind="stable")
+                if i > 0 and costs[i] < costs[0]
+            ][: max(scan_starts, 1)]
+            if best_scanned:
+                if n_starts <= 1:
+                    starts[0:1] = best_scanned  # instead of the warm start
+                else:
+                    starts[1:1] = best_scanned  # right after it
+                n_starts += len(best_scanned) - 1
+        if n_starts > len(starts):
+            lhs = qmc.LatinHypercube(d=n_draw, seed=seed).random(n_starts - len(starts))
+            for row in lhs:
+                u = first.copy()
+                u[k - n_draw :] = 1.0 + row
+                starts.append(u)
+        starts = starts[: max(n_starts, 1)] if scan > 0 else starts
+        best: Any = None
+        for u0 in starts:
+            sol = least_squares(
+                self._vector,
+                np.clip(u0, 1.0, 2.0),
+                bounds=(1.0, 2.0),
+                method="trf",
+                diff_step=settings.diff_step,
+                max_nfev=settings.max_nfev_per_param * (k + 1),
+                x_scale=1.0,
+                xtol=1e-4,
+                ftol=1e-4,
+                gtol=1e-6,
+                workers=self._batch_map,
+            )
+            if best is None or sol.cost < best.cost:
+                best = sol
+        values = [
+            p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, best.x, strict=True)
+        ]
+        std, cov = _uncertainty(best, self.params)
+        try:
+            system = self.build(values)
+        except ValueError as exc:
+            raise ValueError(
+                f"no valid model within the bounds of {[n for n, _ in self.params]}: {exc}"
+            ) from exc
+        return Fit(
+            values={n: v for (n, _), v in zip(self.params, values, strict=True)},
+            std_errors={n: s for (n, _), s in zip(self.params, std, strict=True)},
+            train_rms_m=self.scale_m * math.sqrt(2.0 * best.cost / len(self.experiments)),
+            n_evaluations=self.n_evaluations,
+            system=system,
+            unit_covariance=cov,
+        )
+
+
+def _uncertainty(sol: Any, params: Sequence[tuple[str, Param]]) -> tuple[list[float], FloatArray]:
+    """Standard errors in physical units, and the covariance in the fit's normalised
+    coordinates, from the Jacobian at the optimum (residual samples are autocorrelated: the
+    variance is inflated by the residual's integrated autocorrelation time)."""
+    jac = np.asarray(sol.jac, dtype=np.float64)
+    n, k = jac.shape
+    dof = max(n - k, 1)
+    # Residual samples are autocorrelated: inflate the variance by the integrated
+    # autocorrelation time (in samples) of the residual.
+    s2 = 2.0 * float(sol.cost) / dof * autocorrelation_time(np.asarray(sol.fun))
+    try:
+        cov = np.linalg.pinv(jac.T @ jac) * s2
+    except np.linalg.LinAlgError:
+        return [math.inf] * k, np.zeros((0, 0))
+    cov = 0.5 * (cov + cov.T)  # exactly symmetric (the pseudo-inverse is to rounding)
+    out = []
+    for i, (_, p) in enumerate(params):
+        u = float(sol.x[i]) - 1.0
+        eps = 1e-6
+        dv = (p.from_unit(min(u + eps, 1.0)) - p.from_unit(max(u - eps, 0.0))) / (
+            min(u + eps, 1.0) - max(u - eps, 0.0)
+        )
+        var = float(cov[i, i])
+        out.append(abs(dv) * math.sqrt(var) if var > 0 and math.isfinite(var) else math.inf)
+    return out, np.asarray(cov, dtype=np.float64)

@@ -1,0 +1,745 @@
+"""The diagnosis loop: calibrate the nominal model, fit every candidate effect on the
+training experiments, judge it on the validation experiments, select effects forward, and
+cross-fit the chosen model over folds."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..config import System
+from ..experiment import Experiment
+from .candidates import Candidate, Param, applicable_candidates
+from .fit import Fit, FitProblem
+from .objective import SimulationCache, floors_m, move_units, rms_of
+from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner
+from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
+
+FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
+
+#: A train/validate split of experiments.
+Split = tuple[Sequence[Experiment], Sequence[Experiment]]
+
+__all__ = [
+    "crossfit_folds",
+    "crossfit_models",
+    "diagnose_experiments",
+    "refine_names",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Ctx:
+    free: Sequence[tuple[str, Param]]
+    set_free: Callable[[System, Mapping[str, float]], System]
+    folds: Sequence[Split]
+    floor: float
+    st: DiagnosisSettings
+    adapt: Adapt
+    #: The nominal model the free parameters are set on.
+    nominal: System
+    #: Warm start of the free nominal parameters per fold (updated after each round).
+    warm: list[dict[str, float]] = field(default_factory=list)
+    #: Effects selected so far, with their fitted values, in order.
+    selected_effects: list[tuple[Candidate, list[float]]] = field(default_factory=list)
+    #: Per experiment name: (overall floor / its own floor)², the weight of its mean square
+    #: in the significance rules (missing: 1).
+    weights: Mapping[str, float] = field(default_factory=dict)
+    #: Simulations of this diagnosis kept for reuse (None: every one simulated).
+    cache: SimulationCache | None = None
+
+    @property
+    def n_validation(self) -> int:
+        return sum(len(v) for _, v in self.folds)
+
+    @property
+    def validation_weights(self) -> FloatArray:
+        """The weight of each validation experiment, in the order of the validation mean
+        squares (folds concatenated)."""
+        return np.array([self.weights.get(e.name, 1.0) for _, v in self.folds for e in v])
+
+    def builder(
+        self, base: System, apply_extra: Callable[[System, Sequence[float]], System]
+    ) -> Callable[[Sequence[float]], System]:
+        nf = len(self.free)
+
+        def build(values: Sequence[float]) -> System:
+            # The free nominal parameters first, then the effects selected so far (with
+            # their fitted values), then the candidate: an effect may depend on a free
+            # parameter (e.g. a drive-side mass as a ratio of the table mass).
+            s = self.set_free(
+                self.nominal, {n: v for (n, _), v in zip(self.free, values[:nf], strict=True)}
+            )
+            for cand, vals in self.selected_effects:
+                s = cand.apply(s, vals)
+            return apply_extra(s, values[nf:])
+
+        return build
+
+    def best_start_setting(self, base: System, cand: Candidate) -> tuple[int, ...]:
+        """The setting of a discrete candidate whose model at the start of its fits (each
+        fold's warm free values, and the manifest's values) has the smallest training gap,
+        summed over folds, as a one-element tuple; all its settings when every start fails
+        to simulate (their fits then report why). All the settings' starts of a fold are
+        simulated as one batch."""
+        cost = np.zeros(len(cand.discrete))
+        prior = {n: p.initial for n, p in self.free}
+        for i, (train, _) in enumerate(self.folds):
+            warm = self.warm[i] if i < len(self.warm) else prior
+            starts = [warm] if warm == prior else [warm, prior]
+            systems = [
+                self.builder(base, _at_setting(cand, k))([st[n] for n, _ in self.free])
+                for k in cand.discrete
+                for st in starts
+            ]
+            # Only its batch evaluation is used: the systems are built above.
+            prob = FitProblem(
+                self.free, lambda v: base, train, self.st.workers, self.adapt, self.cache
+            )
+            ms = [
+                math.inf if r is None else rms_of(r) ** 2 for r in prob.residuals_or_none(systems)
+            ]
+            cost += np.min(np.reshape(ms, (len(cand.discrete), len(starts))), axis=1)
+        if not np.isfinite(cost).any():
+            return cand.discrete
+        return (cand.discrete[int(np.argmin(cost))],)
+
+    def fit_and_validate(
+        self,
+        base: System,
+        params: Sequence[tuple[str, Param]],
+        apply_extra: Callable[[System, Sequence[float]], System],
+        n_starts: int,
+        seed: int,
+        screen: bool = False,
+        scan_points: int | None = None,
+        screen_starts: int = 1,
+        scan_starts: int = 1,
+    ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
+        """Fit on each fold's training experiments; mean-square gap on its validation ones
+        (concatenated over folds), the validation residuals per fold, the mean-square
+        command residual of each validation experiment (None without a measured command),
+        and each validation move's share of its experiment's mean square (:func:`move_units`;
+        they sum to the experiment's)."""
+        fits, ms, residuals = [], [], []
+        units: list[float] = []
+        command: list[float | None] = []
+        for i, (train, validate) in enumerate(self.folds):
+            warm = self.warm[i] if i < len(self.warm) else {}
+            free = [
+                (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
+                for n, p in self.free
+            ]
+            prob = FitProblem(
+                free + list(params),
+                self.builder(base, apply_extra),
+                train,
+                self.st.workers,
+                self.adapt,
+                self.cache,
+            )
+            # Two starts at least: the warm values, and the manifest's (prior) values.
+            prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
+            # Screening uses the warm start only, except for candidates without continuous
+            # parameters (delays), whose changes can move the free parameters far: they
+            # also get the prior start.
+            both = warm and (not screen or not params)
+            f = prob.fit(
+                (max(n_starts, 2) if both else screen_starts) if screen or warm else n_starts,
+                self.st,
+                seed,
+                n_warm=len(free) if warm else 0,
+                prior=prior if both else None,
+                # The first calibration of the model (no warm values) scans all its free
+                # parameters: it is cheap, and a poor local optimum there would make any
+                # candidate's refit look like an effect.
+                scan=(
+                    scan_points or min(self.st.scan_points * len(params), self.st.scan_points_max)
+                )
+                if params
+                else (0 if warm else self.st.scan_points_nominal),
+                scan_starts=scan_starts,
+            )
+            res, val_command = prob.residuals_and_commands(f.system, validate)
+            fits.append(f)
+            residuals.append(res)
+            ms += [float(np.mean(r**2)) for r in res]
+            for e, r in zip(validate, res, strict=True):
+                w = self.weights.get(e.name, 1.0)
+                units += [
+                    w * float(np.sum(r[a:b] ** 2)) / len(r) for a, b in move_units(e.reference_m)
+                ]
+            command += val_command
+        return fits, np.array(ms), residuals, command, np.array(units)
+
+
+def diagnose_experiments(
+    nominal: System,
+    free: Sequence[tuple[str, Param]],
+    set_free: Callable[[System, Mapping[str, float]], System],
+    folds: Sequence[Split],
+    *,
+    adapt: Adapt | None = None,
+    candidates: Sequence[str] | None = None,
+    settings: DiagnosisSettings | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run the diagnosis over train/validate folds. Returns a dict with ``nominal`` (Fit of
+    the first fold), ``nominal_validation_ms``, ``floor_rms_m``, ``rounds`` (lists of
+    CandidateResult, best first), ``selected`` (names), ``final`` (Fit of the first fold),
+    ``final_validation_ms``, ``skipped`` (name → reason), ``refit_control`` (the rounds in
+    which refitting the model before from a candidate's free values improved it),
+    ``timing_s``, ``simulations`` (``simulated``: simulations run, None without the
+    cache; ``reused``: looked up in the :class:`SimulationCache`) and ``cache`` (that
+    cache, or None: the report's simulations of the same fits look it up)."""
+    st = settings or DiagnosisSettings()
+    t_start = time.perf_counter()
+    if not st.simulation_cache_mb >= 0.0:
+        raise ValueError(
+            f"DiagnosisSettings.simulation_cache_mb = {st.simulation_cache_mb!r}: must be ≥ 0 "
+            "(MB of simulations kept for reuse; 0 turns the reuse off)"
+        )
+    if not folds or any(len(v) == 0 for _, v in folds):
+        raise ValueError("the diagnosis needs at least one validation experiment per fold")
+    every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
+    floor, floors = floors_m(list(every.values()), nominal.encoder.count_m)
+    weights = {n: (floor / f) ** 2 for n, f in floors.items()} if st.kind_floors else {}
+    # Candidate names and start values are checked before any fitting.
+    cands, skipped = applicable_candidates(nominal, candidates)
+    cands = with_starts(cands, st.candidate_starts)
+    unknown = sorted(set(st.candidate_starts or {}) - {c.name for c in cands})
+    if unknown:
+        raise ValueError(
+            f"candidate_starts names {', '.join(map(repr, unknown))}, not among the "
+            f"candidates of this diagnosis ({', '.join(c.name for c in cands)})"
+        )
+    ctx = _Ctx(
+        free=free,
+        set_free=set_free,
+        folds=folds,
+        floor=floor,
+        st=st,
+        weights=weights,
+        adapt=adapt or (lambda s, e: s),
+        nominal=nominal,
+        cache=(
+            SimulationCache(st.simulation_cache_mb * 1e6) if st.simulation_cache_mb > 0 else None
+        ),
+    )
+    print_progress(
+        f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
+        f"{len(folds)} fold(s))",
+        progress,
+    )
+    nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
+        nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
+    )
+    ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
+    selected: list[str] = []
+    rounds: list[list[CandidateResult]] = []
+    refits: list[dict[str, Any]] = []
+    current = nominal
+    current_fits = nominal_fits
+    current_ms = base_ms
+    current_cmd = base_cmd
+    current_units: FloatArray | None = base_units
+    pool_names = [c.name for c in cands]
+    for rnd in range(st.forward_rounds):
+        names = pool_names if rnd == 0 else pool_names[: st.forward_top]
+        cand_now, _ = applicable_candidates(current, [n for n in names if n not in selected])
+        cand_now = with_starts(cand_now, st.candidate_starts)
+        if any(n in FRICTION_MODELS for n in selected):
+            cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
+        results: list[CandidateResult] = []
+
+        now = (current, current_ms, current_cmd, current_units)
+        for i, cand, r, exc, seconds in _concurrently(
+            list(enumerate(cand_now)), now, ctx, screen=True
+        ):
+            if r is None:
+                # An invalid combination with the effects already selected, or a
+                # simulation failing at the start values: reported, not fatal.
+                skipped[cand.name] = f"round {rnd + 1}: could not be fitted: {exc}"
+                print_progress(f"  round {rnd + 1} {cand.name}: not fitted ({exc})", progress)
+                continue
+            results.append(r)
+            print_progress(
+                f"  round {rnd + 1} [{i + 1}/{len(cand_now)}] {cand.name:26s} "
+                f"validation {r.validation_rms_m * 1e9:9.1f} nm  shrink {r.shrink:+.1%}"
+                f"{'  significant' if r.significant else ''}"
+                f"  ({seconds:.1f} s)",
+                progress,
+            )
+        results.sort(key=lambda r: r.validation_rms_m)
+        # Refine the best few with all starts (warm, the manifest's prior, Latin
+        # hypercube), then rank again.
+        by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
+
+        top = [by_name[name] for name in refine_names(results, st)]
+        where = {r.effect: j for j, r in enumerate(results)}
+        for _, cand, refined, exc, seconds in _concurrently(top, now, ctx, screen=False):
+            if refined is None:
+                skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
+                continue
+            results[where[cand.name]] = refined
+            print_progress(
+                f"  round {rnd + 1} refit {cand.name:26s} validation "
+                f"{refined.validation_rms_m * 1e9:9.1f} nm  shrink {refined.shrink:+.1%}"
+                f"{'  significant' if refined.significant else ''}"
+                f"  ({seconds:.1f} s)",
+                progress,
+            )
+        results.sort(key=lambda r: r.validation_rms_m)
+        # Refitting alone: a candidate's fit moves the free nominal parameters too, and
+        # may have found a better optimum of the model *without* the effect. Refit the
+        # model before from each significant candidate's free values; a better
+        # training fit becomes the baseline, and every candidate is judged again.
+        better = _refit_control(ctx, current, results, current_fits, current_ms, rnd, progress)
+        if better is not None:
+            current_fits, current_ms, current_cmd, current_units, record = better
+            refits.append(record)
+            ctx.warm[:] = [_free_values(f, free) for f in current_fits]
+            if rnd == 0:
+                nominal_fits, base_ms = current_fits, current_ms
+            # Judged again against the new baseline; what does not depend on it (the
+            # Occam factor, the units) is carried over.
+            results = [
+                dataclasses.replace(
+                    _verdict(
+                        r.effect,
+                        r.fold_fits,
+                        r.validation_ms,
+                        r.validation_command_ms,
+                        r.setting,
+                        r.k_params,
+                        current_ms,
+                        current_cmd,
+                        ctx,
+                        r.index,
+                        r.validation_units,
+                        current_units,
+                    ),
+                    log_occam=r.log_occam,
+                    units=r.units,
+                )
+                for r in results
+            ]
+            results.sort(key=lambda r: r.validation_rms_m)
+        rounds.append(results)
+        if rnd == 0:
+            pool_names = [r.effect for r in results]
+        best = pick_winner(results, st)
+        if best is None:
+            break
+        selected.append(best.effect)
+        cand_best = next(c for c in cand_now if c.name == best.effect)
+        values = _effect_values(cand_best, best)
+        ctx.selected_effects.append((cand_best, values))
+        current = cand_best.apply(current, values)
+        current_fits = best.fold_fits
+        ctx.warm[:] = [_free_values(f, free) for f in best.fold_fits]
+        current_ms = best.validation_ms
+        current_cmd = best.validation_command_ms
+        current_units = best.validation_units
+    return {
+        "nominal": nominal_fits[0],
+        "nominal_fits": nominal_fits,
+        "nominal_validation_ms": base_ms,
+        "floor_rms_m": floor,
+        "experiment_floors_m": floors,
+        "kind_floors": st.kind_floors,
+        "rounds": rounds,
+        "selected": selected,
+        "selected_effects": list(ctx.selected_effects),
+        "final": current_fits[0],
+        "final_fits": current_fits,
+        "final_validation_ms": current_ms,
+        "skipped": skipped,
+        "refit_control": refits,
+        "timing_s": time.perf_counter() - t_start,
+        "cache": ctx.cache,
+        "simulations": {
+            "simulated": None if ctx.cache is None else ctx.cache.misses,
+            "reused": 0 if ctx.cache is None else ctx.cache.hits,
+        },
+    }
+
+
+def refine_names(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
+    """The candidates of a round refitted from all starts, from its screened results (best
+    first): the best :attr:`DiagnosisSettings.refine_top`, and with
+    :attr:`DiagnosisSettings.refine_best_friction_model` the best-screened friction-model
+    candidate outside them (one at most)."""
+    names = [r.effect for r in results[: st.refine_top]]
+    if st.refine_best_friction_model:
+        rest = (r.effect for r in results[st.refine_top :] if r.effect in FRICTION_MODELS)
+        best = next(rest, None)
+        if best is not None:
+            names.append(best)
+    return names
+
+
+def _concurrently(
+    items: Sequence[tuple[int, Candidate]],
+    now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
+    ctx: _Ctx,
+    screen: bool,
+) -> Iterator[tuple[int, Candidate, CandidateResult | None, Exception | None, float]]:
+    """:func:`_judge` of each ``(index, candidate)`` against the model ``now`` (system,
+    validation mean squares, command residuals, move units), up to
+    ``ctx.st.parallel_candidates`` at a time, yielded in the order given:
+    ``(i, cand, result, None, seconds)``, or ``(i, cand, None, error, seconds)`` for a
+    candidate that could not be fitted (``ValueError``/``RuntimeError``). The candidates'
+    fits are independent (each its own problem, starts and seed), so the results do not
+    depend on how many run at once: two at once overlap one fit's Python work with the
+    other's simulations (which release the GIL)."""
+
+    def one(item: tuple[int, Candidate]) -> tuple[CandidateResult | None, Exception | None, float]:
+        t0 = time.perf_counter()
+        try:
+            r = _judge(item[1], *now, ctx, item[0], screen=screen)
+        except (ValueError, RuntimeError) as exc:
+            return None, exc, time.perf_counter() - t0
+        return r, None, time.perf_counter() - t0
+
+    threads = max(1, min(ctx.st.parallel_candidates, len(items)))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        outcomes = pool.map(one, items) if threads > 1 else map(one, items)
+        for (i, cand), (r, exc, dt) in zip(items, outcomes, strict=True):
+            yield i, cand, r, exc, dt
+
+
+def crossfit_folds(n_train: int, n_validate: int, k: int) -> list[tuple[list[int], list[int]]]:
+    """The folds of :func:`crossfit_models`: ``(training indices, judged indices)`` into the
+    list training + validation experiments. Fold ``j`` judges the validation experiments
+    ``j, j + k, j + 2k, …`` and trains on every other experiment (round robin, so that each
+    fold holds a mix of the validation kinds); every validation experiment is judged once."""
+    k = max(1, min(k, n_validate))
+    out = []
+    for j in range(k):
+        judged = [n_train + i for i in range(j, n_validate, k)]
+        out.append(([i for i in range(n_train + n_validate) if i not in judged], judged))
+    return out
+
+
+def crossfit_models(
+    nominal: System,
+    free: Sequence[tuple[str, Param]],
+    set_free: Callable[[System, Mapping[str, float]], System],
+    train: Sequence[Experiment],
+    validate: Sequence[Experiment],
+    effects: Sequence[tuple[Candidate, Sequence[float]]],
+    warm_nominal: Mapping[str, float],
+    warm_final: Mapping[str, float],
+    *,
+    k: int,
+    adapt: Adapt,
+    settings: DiagnosisSettings,
+    cache: SimulationCache | None = None,
+) -> list[tuple[list[Experiment], System, System]]:
+    """Cross-fitting of the nominal and the selected model over the validation experiments:
+    for each fold of :func:`crossfit_folds`, both models are refitted (one local fit from
+    the diagnosis's fitted values: the free nominal parameters, and for the selected model
+    also every selected effect's continuous parameters; a delay keeps its setting) on the
+    training experiments plus the other folds' validation experiments. Returns, per fold,
+    the experiments it judges and the two refitted systems. Each validation experiment is
+    judged by models whose fit never saw it, fitted on nearly all the data, as a user would
+    recalibrate before using the model: the gap they leave is the shrink to expect then.
+    With ``cache`` (the diagnosis's), the folds' shared simulations (the first Jacobian at
+    the common warm start, on the experiments the folds have in common) are looked up."""
+    exps = list(train) + list(validate)
+    nf = len(free)
+
+    def problem(
+        training: list[Experiment],
+        warm: Mapping[str, float],
+        with_effects: Sequence[tuple[Candidate, Sequence[float]]],
+    ) -> FitProblem:
+        params = [(n, dataclasses.replace(p, initial=warm[n])) for n, p in free]
+        for cand, values in with_effects:
+            if not cand.discrete:
+                params += [
+                    (f"{cand.name}.{q.name}", dataclasses.replace(q, initial=float(v)))
+                    for q, v in zip(cand.params, values, strict=True)
+                ]
+
+        def build(values: Sequence[float]) -> System:
+            s = set_free(nominal, {n: v for (n, _), v in zip(free, values[:nf], strict=True)})
+            at = nf
+            for cand, fitted in with_effects:
+                if cand.discrete:
+                    s = cand.apply(s, fitted)
+                else:
+                    s = cand.apply(s, values[at : at + len(cand.params)])
+                    at += len(cand.params)
+            return s
+
+        return FitProblem(params, build, training, settings.workers, adapt, cache)
+
+    jobs = []
+    for tr, judged in crossfit_folds(len(train), len(validate), k):
+        training = [exps[i] for i in tr]
+        jobs.append((training, [exps[i] for i in judged]))
+
+    def fit_pair(job: tuple[list[Experiment], list[Experiment]]) -> tuple[System, System]:
+        training, _ = job
+        before = problem(training, warm_nominal, ()).fit(1, settings, settings.seed)
+        after = (
+            problem(training, warm_final, effects).fit(1, settings, settings.seed)
+            if effects
+            else before
+        )
+        return before.system, after.system
+
+    threads = max(1, min(settings.parallel_candidates, len(jobs)))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        pairs = list(pool.map(fit_pair, jobs) if threads > 1 else map(fit_pair, jobs))
+    return [(judged, b, a) for (_, judged), (b, a) in zip(jobs, pairs, strict=True)]
+
+
+def _refit_control(
+    ctx: _Ctx,
+    current: System,
+    results: Sequence[CandidateResult],
+    current_fits: Sequence[Fit],
+    current_ms: FloatArray,
+    rnd: int,
+    progress: bool,
+) -> tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None:
+    """The model before, refitted from the free values of each of the best
+    ``refit_control_top`` significant candidates (None: all): its fits, validation mean squares,
+    command residuals and a record for the report if one of them fits the training data
+    better than ``current_fits`` (by more than 0.1 % in mean square), else None."""
+    st = ctx.st
+    if not ctx.free or (st.refit_control_top is not None and st.refit_control_top <= 0):
+        return None
+    saved = list(ctx.warm)
+
+    def train_ms(fits: Sequence[Fit]) -> float:
+        return float(np.mean([f.train_rms_m**2 for f in fits]))
+
+    best: tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None = None
+    before = train_ms(current_fits)
+    best_train = before * (1.0 - 1e-3)
+    try:
+        for r in [r for r in results if r.significant][: st.refit_control_top]:
+            ctx.warm[:] = [_free_values(f, ctx.free) for f in r.fold_fits]
+            fits, ms, _, cmd, units = ctx.fit_and_validate(current, (), lambda s, v: s, 1, st.seed)
+            t = train_ms(fits)
+            print_progress(
+                f"  round {rnd + 1} refit control from {r.effect}'s free values: training "
+                f"{math.sqrt(t) * 1e9:.1f} nm (before {math.sqrt(before) * 1e9:.1f})",
+                progress,
+            )
+            if t < best_train:
+                record = {
+                    "round": rnd + 1,
+                    "restarted_from": r.effect,
+                    "train_rms_before_m": math.sqrt(before),
+                    "train_rms_after_m": math.sqrt(t),
+                    "validation_rms_before_m": math.sqrt(float(np.mean(current_ms))),
+                    "validation_rms_after_m": math.sqrt(float(np.mean(ms))),
+                }
+                best, best_train = (fits, ms, cmd, units, record), t
+    finally:
+        ctx.warm[:] = saved
+    return best
+
+
+def _free_values(fit: Fit, free: Sequence[tuple[str, Param]]) -> dict[str, float]:
+    return {n: fit.values[n] for n, _ in free if n in fit.values}
+
+
+def _effect_values(cand: Candidate, best: CandidateResult) -> list[float]:
+    """The winner's fitted effect values (its integer setting for a delay)."""
+    if cand.discrete:
+        assert best.setting is not None
+        return [float(best.setting)]
+    return [best.fit.values[f"{cand.name}.{p.name}"] for p in cand.params]
+
+
+def _at_setting(cand: Candidate, k: int) -> Callable[[System, Sequence[float]], System]:
+    """A discrete candidate's ``apply`` fixed at setting ``k`` (it takes no values)."""
+
+    def apply(s: System, v: Sequence[float]) -> System:
+        return cand.apply(s, [k])
+
+    return apply
+
+
+def _judge(
+    cand: Candidate,
+    base: System,
+    base_ms: FloatArray,
+    base_cmd: Sequence[float | None],
+    base_units: FloatArray | None,
+    ctx: _Ctx,
+    index: int,
+    screen: bool = False,
+) -> CandidateResult:
+    """Fit one candidate on every fold and judge it on the validation experiments
+    (``screen``: one warm start only, for ranking)."""
+    st = ctx.st
+    extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
+    setting: int | None = None
+    if cand.discrete:
+        best: tuple[list[Fit], FloatArray, list[float | None], int, FloatArray] | None = None
+        # Screening fits only the setting whose start fits the training experiments best
+        # (each setting's fit costs as much as a whole continuous candidate's); refining
+        # fits every setting.
+        ks = ctx.best_start_setting(base, cand) if screen else cand.discrete
+        for k in ks:
+            fits, ms, _, cmd, units = ctx.fit_and_validate(
+                base, (), _at_setting(cand, k), 1, st.seed + index, screen
+            )
+            train = float(np.mean([f.train_rms_m for f in fits]))
+            if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
+                best = (fits, ms, cmd, k, units)
+        assert best is not None
+        fits, ms, cmd, setting, units = best
+        k_params = 1
+    else:
+        friction_model = cand.name in FRICTION_MODELS
+        # The extra starts of a friction model in the first round only: later rounds ask
+        # whether anything remains on top of the selected effects, whose simulations can
+        # cost far more (a hunting backlash ~16×).
+        many = friction_model and not ctx.selected_effects
+        fits, ms, _, cmd, units = ctx.fit_and_validate(
+            base,
+            extra,
+            cand.apply,
+            st.n_starts_friction_models if many else st.n_starts_candidate,
+            st.seed + index,
+            screen,
+            cand.scan_points,
+            # A friction-model candidate replaces the table friction, so its warm start is
+            # not the model before: screen it from the warm start and the scan's best.
+            st.screen_starts_friction_models if friction_model else 1,
+            cand.scan_starts,
+        )
+        k_params = len(cand.params)
+    result = _verdict(
+        cand.name,
+        fits,
+        ms,
+        cmd,
+        setting,
+        k_params,
+        base_ms,
+        base_cmd,
+        ctx,
+        index,
+        units,
+        base_units,
+    )
+    return dataclasses.replace(
+        result,
+        log_occam=log_occam_factor(fits[0], [n for n, _ in extra], len(cand.discrete)),
+        units={n: p.unit for n, p in extra},
+    )
+
+
+def _verdict(
+    name: str,
+    fits: list[Fit],
+    ms: FloatArray,
+    cmd: list[float | None],
+    setting: int | None,
+    k_params: int,
+    base_ms: FloatArray,
+    base_cmd: Sequence[float | None],
+    ctx: _Ctx,
+    index: int,
+    units: FloatArray | None = None,
+    base_units: FloatArray | None = None,
+) -> CandidateResult:
+    """Judge fitted candidate results against the model before (``base_ms``). The bootstrap
+    resamples validation moves (``units``/``base_units``) when both are given, else
+    experiments."""
+    st = ctx.st
+    d = base_ms - ms
+    # The rules weigh each validation experiment by its own noise floor (all 1 without
+    # kind floors): in units of the overall floor, a quiet experiment's gap counts as much
+    # as a loud one's relative to what noise alone gives there. The move units come
+    # weighted from :meth:`_Ctx.fit_and_validate`.
+    w = ctx.validation_weights if len(base_ms) == ctx.n_validation else np.ones(len(base_ms))
+    du = (
+        base_units - units
+        if units is not None and base_units is not None and len(units) == len(base_units)
+        else w * d
+    )
+    p = bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
+    rms0 = math.sqrt(float(np.mean(base_ms)))
+    rms1 = math.sqrt(float(np.mean(ms)))
+    shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
+    wrms0 = math.sqrt(float(np.mean(w * base_ms)))
+    wrms1 = math.sqrt(float(np.mean(w * ms)))
+    weighted_shrink = 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
+    penalty = st.penalty_base + st.penalty_per_param * k_params
+    floor_gain = st.floor_factor * ctx.floor**2 / ctx.n_validation
+    gain = float(np.mean(w * d))
+    weighted = bool(np.any(w != 1.0))
+    wtag = " (floor-weighted)" if weighted else ""
+    reasons = []
+    ok = True
+    if p >= st.p_value:
+        ok = False
+        reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.2f} ≥ {st.p_value}")
+    if weighted_shrink <= penalty:
+        ok = False
+        reasons.append(f"shrink{wtag} {weighted_shrink:.1%} ≤ complexity penalty {penalty:.0%}")
+    if wrms0 <= st.explainable_factor * ctx.floor:
+        ok = False
+        reasons.append(
+            f"the gap before{wtag} ({wrms0 * 1e9:.0f} nm) is within {st.explainable_factor}× "
+            f"the noise floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
+        )
+    if gain <= floor_gain:
+        ok = False
+        reasons.append(
+            f"mean-square gain {gain:.3g} m² ≤ noise-and-refit floor {floor_gain:.3g} m²"
+        )
+    pairs = [(a, b) for a, b in zip(base_cmd, cmd, strict=True) if a is not None and b is not None]
+    command_ratio = (
+        math.sqrt(sum(b for _, b in pairs) / sum(a for a, _ in pairs))
+        if pairs and sum(a for a, _ in pairs) > 0
+        else None
+    )
+    if command_ratio is not None and command_ratio > st.command_tolerance:
+        ok = False
+        reasons.append(
+            f"the measured command (a channel the fit does not use) gets worse: its RMS "
+            f"residual × {command_ratio:.2f}"
+        )
+    if ok:
+        reasons.append(
+            f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}"
+            + (f"; floor-weighted {wrms0 * 1e9:.0f} → {wrms1 * 1e9:.0f} nm" if weighted else "")
+            + f"), bootstrap p = {p:.3f}"
+            + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
+        )
+    return CandidateResult(
+        effect=name,
+        fit=fits[0],
+        fold_fits=fits,
+        validation_ms=ms,
+        validation_command_ms=cmd,
+        command_ratio=command_ratio,
+        validation_rms_m=rms1,
+        shrink=shrink,
+        weighted_shrink=weighted_shrink,
+        p_value=p,
+        significant=ok,
+        reasons=reasons,
+        setting=setting,
+        index=index,
+        k_params=k_params,
+        validation_units=units,
+    )

@@ -1,0 +1,407 @@
+"""The fit objective: the gap between measured and simulated readings, aligned per hold.
+
+
+The gap
+    For each sample, measured feedback reading minus the simulated mean reading
+    ``x_sim − q/2`` (``q`` the encoder count: a floor quantiser reads on average half a count
+    low). Using the mean reading keeps the fit objective smooth in the parameters; its floor
+    for a perfect model is the quantisation noise ``q/√12`` plus sensor noise plus the
+    trial-to-trial friction scatter. Experiments are weighted equally (each contributes its
+    mean square).
+
+Also the simulation cache the fits share, and the noise floors the selection compares
+against.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from ..config import System
+from ..experiment import Experiment
+from ..simulate import simulate_batch
+from .settings import FloatArray
+
+__all__ = [
+    "SimulationCache",
+    "align_holds",
+    "apply_gap_plan",
+    "autocorrelation_time",
+    "experiment_floors_m",
+    "experiment_kind",
+    "floors_m",
+    "gap_plan",
+    "gap_residual",
+    "hold_intervals",
+    "move_units",
+    "noise_floor_m",
+    "rms_of",
+    "simulate_reading_and_command",
+    "simulate_readings_and_commands",
+    "simulated_mean_reading",
+]
+
+
+def hold_intervals(reference_m: npt.ArrayLike, min_samples: int = 20) -> list[tuple[int, int]]:
+    """(start, stop) of each stretch of at least ``min_samples`` where the reference is
+    constant (after a step, or a rest between ramps)."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    const = np.r_[False, np.diff(ref) == 0]
+    out = []
+    k, n = 0, len(ref)
+    while k < n:
+        if const[k]:
+            a = k - 1 if k > 0 else 0
+            while k < n and const[k]:
+                k += 1
+            if k - a >= min_samples:
+                out.append((a, k))
+        else:
+            k += 1
+    return out
+
+
+#: A hold is *unsettled* at its end when the measured position still spans more than this
+#: many quanta (the smallest changes between samples: an encoder count) over its last
+#: :data:`SETTLE_WINDOW` samples, and more than :data:`UNSETTLED_STEP_FRACTION` of the step
+#: into it.
+UNSETTLED_QUANTA = 4.0
+UNSETTLED_STEP_FRACTION = 0.02
+SETTLE_WINDOW = 50
+
+
+def move_units(reference_m: npt.ArrayLike) -> list[tuple[int, int]]:
+    """The experiment cut into its moves, (start, stop) each: a new unit starts where the
+    reference settles at a new value (each hold after the first); the rest before the first
+    move belongs to the first unit. A reference without holds is one unit."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    starts = [a for a, _ in hold_intervals(ref) if a > 0]
+    bounds = [0, *starts[1:], len(ref)] if starts else [0, len(ref)]
+    return list(itertools.pairwise(bounds))
+
+
+def _quantum(m: FloatArray) -> float:
+    d = np.abs(np.diff(m))
+    d = d[d > 0]
+    # The 5th percentile of the nonzero changes: one count for encoder data however fast
+    # the axis moves, the noise level for a continuous sensor.
+    return float(np.percentile(d, 5.0)) if d.size else 0.0
+
+
+def gap_residual(
+    measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike, reference_m: npt.ArrayLike
+) -> FloatArray:
+    """The gap of one experiment: measured − simulated, sample by sample, except where the
+    reference is constant from the moment the measured position first reaches it (or from
+    the second half of that stretch, if it never does): there the *sorted* values are
+    compared — the distribution of positions (mean, overshoot amplitude, limit-cycle
+    amplitude) but not the phase of an oscillation, which no model reproduces sample by
+    sample once it is chaotic (backlash hunting, stick-slip).
+
+    A move that starts while the measured position is still hunting (the previous hold is
+    unsettled at its end, see :data:`UNSETTLED_QUANTA`) starts from the phase of that
+    oscillation, which no model reproduces either: its transient is compared after the time
+    shift of at most :data:`SETTLE_WINDOW` samples that fits best (the minimum over shifts
+    is still a continuous function of the model). Which samples are compared how depends on
+    the measured data only.
+
+    An experiment whose reference never moves is driven by a known input (an open-loop
+    pulse or a disturbance test): its response is compared sample by sample throughout."""
+    return apply_gap_plan(gap_plan(measured_m, reference_m), measured_m, simulated_m)
+
+
+#: How :func:`gap_residual` compares one hold: ``(a, h, b, aligned, order)``: samples
+#: ``[a, h)`` sample by sample (after the best time shift when ``aligned``), ``[h, b)`` as
+#: sorted values (``order``: the measured samples' ranks there).
+HoldPlan = tuple[int, int, int, bool, npt.NDArray[np.intp]]
+
+
+def gap_plan(measured_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> list[HoldPlan]:
+    """The part of :func:`gap_residual` that depends on the measured data only (computed
+    once per experiment by the fits, which compare many simulations with it)."""
+    m = np.asarray(measured_m, dtype=np.float64)
+    ref = np.asarray(reference_m, dtype=np.float64)
+    if ref.size == 0 or np.all(ref == ref[0]):
+        return []
+    q = _quantum(m)
+    plan: list[HoldPlan] = []
+    unsettled = False
+    for a, b in hold_intervals(ref):
+        step = abs(ref[a] - ref[a - 1]) if a > 0 else 0.0
+        side = np.sign(m[a:b] - ref[a])
+        start_side = side[0]
+        crossed = np.flatnonzero(side != start_side) if start_side != 0 else np.array([0])
+        h = a + int(crossed[0]) if crossed.size else a + (b - a) // 2
+        plan.append((a, h, b, unsettled and h > a, np.argsort(m[h:b], kind="stable")))
+        tail = m[max(a, b - SETTLE_WINDOW) : b]
+        spread = float(np.ptp(tail)) if tail.size else 0.0
+        unsettled = spread > UNSETTLED_QUANTA * q and spread > UNSETTLED_STEP_FRACTION * step
+    return plan
+
+
+def apply_gap_plan(
+    plan: Sequence[HoldPlan], measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike
+) -> FloatArray:
+    """:func:`gap_residual` from its plan (:func:`gap_plan` of the same measured data)."""
+    m = np.asarray(measured_m, dtype=np.float64)
+    s = np.asarray(simulated_m, dtype=np.float64)
+    r = m - s
+    for a, h, b, aligned_move, order in plan:
+        if aligned_move:
+            r[a:h] = m[a:h] - _best_shift(m, s, a, h, SETTLE_WINDOW)
+        if b - h > 1:
+            aligned = np.empty(b - h)
+            aligned[order] = np.sort(s[h:b])
+            r[h:b] = m[h:b] - aligned
+    return r
+
+
+def _best_shift(m: FloatArray, s: FloatArray, a: int, h: int, window: int) -> FloatArray:
+    """``s`` over ``[a, h)`` delayed or advanced by the whole number of samples (at most
+    ``window``) that matches ``m`` there best (indices clamped to the record). Ties go to no
+    shift, then to the most negative shift."""
+    shifts = np.arange(-window, window + 1)
+    idx = np.clip(np.arange(a, h)[None, :] + shifts[:, None], 0, len(s) - 1)
+    cands = s[idx]
+    costs = np.sum((m[a:h][None, :] - cands) ** 2, axis=1)
+    k = window if costs[window] <= costs.min() else int(np.argmin(costs))
+    best: FloatArray = cands[k]
+    return best
+
+
+def align_holds(
+    measured_m: npt.ArrayLike, simulated_m: npt.ArrayLike, reference_m: npt.ArrayLike
+) -> FloatArray:
+    """The simulated signal with the samples of each hold window re-ordered to rank-match
+    the measured ones, so that ``measured − aligned`` is :func:`gap_residual`."""
+    out: FloatArray = np.asarray(measured_m, dtype=np.float64) - gap_residual(
+        measured_m, simulated_m, reference_m
+    )
+    return out
+
+
+def autocorrelation_time(r: FloatArray, max_lag: int = 500) -> float:
+    """Integrated autocorrelation time ``1 + 2·Σρ(k)``, summed until ρ first drops below 0."""
+    r = r - float(np.mean(r))
+    var = float(np.dot(r, r))
+    if var <= 0.0 or len(r) < 4:
+        return 1.0
+    tau = 1.0
+    for lag in range(1, min(max_lag, len(r) // 2)):
+        rho = float(np.dot(r[:-lag], r[lag:])) / var
+        if rho <= 0.0:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+def rms_of(res: Sequence[FloatArray]) -> float:
+    return math.sqrt(float(np.mean([np.mean(r**2) for r in res])))
+
+
+def simulate_reading_and_command(system: System, exp: Experiment) -> tuple[FloatArray, FloatArray]:
+    """The simulated mean reading (true position of the sensor's side minus half a count)
+    and the controller's output in volts, on the experiment's samples."""
+    return simulate_readings_and_commands([system], [exp])[0]
+
+
+def simulate_readings_and_commands(
+    systems: Sequence[System], experiments: Sequence[Experiment], threads: int = 0
+) -> list[tuple[FloatArray, FloatArray]]:
+    """:func:`simulate_reading_and_command` for each (system, experiment) pair, simulated in
+    one parallel batch of the core (``threads`` workers; 0: one per CPU)."""
+    for system, exp in zip(systems, experiments, strict=True):
+        t = system.sample_period_s
+        if abs(exp.sample_period_s - t) > 1e-3 * t:
+            raise ValueError(
+                f"experiment {exp.name!r} ({exp.source}): sample period "
+                f"{exp.sample_period_s:g} s differs from the controller's {t:g} s"
+            )
+    traces = simulate_batch(
+        systems,
+        [e.reference_m for e in experiments],
+        force_disturbances_n=[e.disturbance_n for e in experiments],
+        command_disturbances_v=[e.disturbance_v for e in experiments],
+        initial_positions_m=[
+            float(e.position_m[0]) + 0.5 * s.encoder.count_m
+            for s, e in zip(systems, experiments, strict=True)
+        ],
+        threads=threads,
+    )
+    out = []
+    for system, tr in zip(systems, traces, strict=True):
+        q = system.encoder.count_m
+        x = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
+        reading: FloatArray = x - 0.5 * q
+        command: FloatArray = tr.command * tr.output_unit_v
+        out.append((reading, command))
+    return out
+
+
+class SimulationCache:
+    """The simulated reading and command (:func:`simulate_readings_and_commands`) of each
+    (system, experiment) pair simulated so far, the least recently used dropped beyond
+    ``max_bytes``. A simulation is a deterministic function of its system and experiment (the
+    same trace bit for bit whatever the batch or thread count), so a pair seen before is
+    looked up instead of simulated: the results are those without the cache. Within a
+    diagnosis a candidate's refit repeats its screening's scan and local fits from the same
+    starts, and a discrete candidate's fits repeat its setting's start.
+
+    Systems are compared by value (``System`` is a frozen dataclass), experiments by
+    identity; an entry keeps its experiment alive. By value means ``0.0 == -0.0``: two
+    systems differing only in the sign of a zero share an entry (their simulations could
+    differ in the last bit where that sign reaches the arithmetic). Thread-safe
+    (candidates are fitted on several Python threads); a batch's misses are simulated as one
+    batch, outside the lock. The stored arrays are read-only."""
+
+    def __init__(self, max_bytes: float) -> None:
+        if not max_bytes >= 0.0:
+            raise ValueError(f"SimulationCache max_bytes = {max_bytes!r}: must be ≥ 0")
+        self.max_bytes = max_bytes
+        self.n_bytes = 0
+        self.hits = 0
+        self.misses = 0
+        self._lock = threading.Lock()
+        self._entries: OrderedDict[
+            tuple[System, int], tuple[Experiment, FloatArray, FloatArray]
+        ] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def simulate(
+        self, systems: Sequence[System], experiments: Sequence[Experiment], threads: int = 0
+    ) -> list[tuple[FloatArray, FloatArray]]:
+        """:func:`simulate_readings_and_commands` of the pairs, the ones seen before looked
+        up; a pair repeated within the call is simulated once."""
+        keys = [(s, id(e)) for s, e in zip(systems, experiments, strict=True)]
+        found: dict[tuple[System, int], tuple[FloatArray, FloatArray]] = {}
+        with self._lock:
+            for key in keys:
+                hit = self._entries.get(key)
+                if hit is not None and key not in found:
+                    self._entries.move_to_end(key)
+                    found[key] = (hit[1], hit[2])
+        todo: dict[tuple[System, int], int] = {}
+        for j, key in enumerate(keys):
+            if key not in found and key not in todo:
+                todo[key] = j
+        with self._lock:
+            self.hits += len(keys) - len(todo)
+            self.misses += len(todo)
+        if todo:
+            idx = list(todo.values())
+            sims = simulate_readings_and_commands(
+                [systems[j] for j in idx], [experiments[j] for j in idx], threads
+            )
+            with self._lock:
+                for key, j, (reading, command) in zip(todo, idx, sims, strict=True):
+                    reading.setflags(write=False)
+                    command.setflags(write=False)
+                    found[key] = (reading, command)
+                    if key not in self._entries:
+                        self._entries[key] = (experiments[j], reading, command)
+                        self.n_bytes += reading.nbytes + command.nbytes
+                while self.n_bytes > self.max_bytes and self._entries:
+                    _, (_, r, c) = self._entries.popitem(last=False)
+                    self.n_bytes -= r.nbytes + c.nbytes
+        return [found[key] for key in keys]
+
+
+def simulated_mean_reading(system: System, exp: Experiment) -> FloatArray:
+    """The simulated true position of the sensor's side minus half a count."""
+    return simulate_reading_and_command(system, exp)[0]
+
+
+def experiment_kind(reference_m: npt.ArrayLike, count_m: float) -> tuple[int, ...]:
+    """What makes two experiments comparable in scatter: the sizes of their reference's
+    steps in counts, in order, whatever the direction and the start (a 300 nm breakaway test
+    and a 1 mm step scatter very differently; a +100 µm and a −100 µm step alike)."""
+    d = np.diff(np.asarray(reference_m, dtype=float))
+    return tuple(round(abs(float(x)) / count_m) for x in d[d != 0.0])
+
+
+def _sensor_floor_var(experiments: Sequence[Experiment], count_m: float) -> float:
+    """Quantisation ``q²/12`` plus the white sensor noise estimated from the second
+    differences of the measured readings where the reference is at rest, m²."""
+    noise_var = []
+    for e in experiments:
+        rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
+        d2 = np.diff(e.position_m, 2)
+        m = rest[1:-1]
+        if np.count_nonzero(m) > 20:
+            mad = float(np.median(np.abs(d2[m] - np.median(d2[m]))))
+            noise_var.append((1.4826 * mad) ** 2 / 6.0)
+    return count_m**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
+
+
+def _repeat_spreads(
+    experiments: Sequence[Experiment], count_m: float
+) -> list[tuple[tuple[int, ...], float]]:
+    """Half the mean-square difference of each pair of repeated experiments (the same
+    reference at the same positions: the same step elsewhere on the travel is not a repeat,
+    since position-dependent friction makes it differ), with the pair's kind. Measured like
+    the gap itself: sample by sample, but in holds as sorted values, so a limit cycle's
+    phase (which no model predicts) is not scatter."""
+    groups: dict[tuple[int, float], list[Experiment]] = {}
+    for e in experiments:
+        key = (len(e.reference_m), round(float(e.reference_m[0]) / count_m))
+        groups.setdefault(key, []).append(e)
+    spreads = []
+    for g in groups.values():
+        for a, b in itertools.pairwise(g):
+            if np.allclose(a.reference_m, b.reference_m, rtol=0.0, atol=count_m / 10):
+                r = gap_residual(a.position_m, b.position_m, a.reference_m)
+                spreads.append(
+                    (experiment_kind(a.reference_m, count_m), float(np.mean(r**2)) / 2.0)
+                )
+    return spreads
+
+
+def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:
+    """The gap a perfect model would leave, m: quantisation ``q/√12`` plus the white sensor
+    noise estimated from the second differences of the measured readings where the
+    reference is at rest, raised to the spread of repeated experiments (the same reference
+    at the same positions), if any. The spread of two repeats is measured with
+    :func:`gap_residual`, as the gap is."""
+    return floors_m(experiments, count_m)[0]
+
+
+def floors_m(experiments: Sequence[Experiment], count_m: float) -> tuple[float, dict[str, float]]:
+    """:func:`noise_floor_m` and :func:`experiment_floors_m` from one pass over the repeats."""
+    sensor = _sensor_floor_var(experiments, count_m)
+    spreads = _repeat_spreads(experiments, count_m)
+    var = sensor
+    if spreads:
+        # The mean over pairs, like the gap's mean over experiments: experiment types differ
+        # in scatter (a chaotic breakaway test far more than a settled step), and a median
+        # would report the quiet ones only.
+        var = max(var, float(np.mean([v for _, v in spreads])))
+    overall = math.sqrt(var)
+    by_kind: dict[tuple[int, ...], list[float]] = {}
+    for kind, v in spreads:
+        by_kind.setdefault(kind, []).append(v)
+    own = {}
+    for e in experiments:
+        vs = by_kind.get(experiment_kind(e.reference_m, count_m))
+        own[e.name] = math.sqrt(max(sensor, float(np.mean(vs)))) if vs else overall
+    return overall, own
+
+
+def experiment_floors_m(experiments: Sequence[Experiment], count_m: float) -> dict[str, float]:
+    """Each experiment's own noise floor, m: the spread of the repeated experiments of its
+    kind (:func:`experiment_kind`; the mean over the kind's repeat pairs), never below the
+    sensor floor; an experiment of a kind without repeats gets :func:`noise_floor_m`.
+
+    Experiment types differ in scatter by an order of magnitude (a breakaway test of three
+    counts scatters by tens of nm, a 1 mm step or a reversal by hundreds), so one floor for
+    all either hides an effect that shows in the quiet experiments only (a rising static
+    friction in the breakaway tests) or lets noise in the loud ones pass for an effect."""
+    return floors_m(experiments, count_m)[1]

@@ -1,0 +1,170 @@
+"""Choosing between fitted candidates.
+
+Significance (documented in docs/diagnosis.md)
+    A candidate is *significant* when all hold: (1) its validation mean-square gap is lower
+    than the nominal model's by more than the noise floor allows: the bootstrap over
+    validation experiments (resampled with replacement) gives a reduction ≤ 0 in fewer than
+    5 % of resamples; (2) the RMS shrink exceeds a complexity penalty of
+    ``0.03 + 0.02·(number of parameters)``; (3) the reduction of the mean square exceeds
+    ``1.5 ×`` the floor's mean square divided by the number of validation experiments (what
+    refitting to noise can buy).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .fit import Fit
+from .settings import DiagnosisSettings, FloatArray
+
+__all__ = [
+    "CandidateResult",
+    "bootstrap_p",
+    "indistinguishable",
+    "log_occam_factor",
+    "pick_winner",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CandidateResult:
+    """One candidate judged on the validation experiments."""
+
+    effect: str
+    fit: Fit
+    #: The fit of every fold (``fit`` is the first).
+    fold_fits: list[Fit]
+    #: Mean-square gap per validation experiment (all folds, fold order), m².
+    validation_ms: FloatArray
+    #: Mean-square command residual per validation experiment, V² (None: no command).
+    validation_command_ms: list[float | None]
+    #: RMS command residual relative to the model before (None: no measured command).
+    command_ratio: float | None
+    validation_rms_m: float
+    shrink: float
+    #: The shrink with each validation experiment weighted by its own noise floor (equal
+    #: to ``shrink`` without kind floors): what the complexity penalty is applied to.
+    weighted_shrink: float
+    p_value: float
+    significant: bool
+    reasons: list[str]
+    setting: int | None = None
+    #: The candidate's position in its round (seeds its bootstrap) and its parameter count
+    #: (the complexity penalty), kept so that it can be judged again against a new baseline.
+    index: int = 0
+    k_params: int = 0
+    #: Each validation move's share of the mean square (the bootstrap's units).
+    validation_units: FloatArray | None = None
+    #: Log Occam factor of the candidate's own parameters (:func:`log_occam_factor`).
+    log_occam: float = 0.0
+    #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
+    units: Mapping[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        units = self.units
+        return {
+            "effect": self.effect,
+            "validation_rms_m": self.validation_rms_m,
+            "shrink": self.shrink,
+            "weighted_shrink": self.weighted_shrink,
+            "significant": self.significant,
+            "p_value": self.p_value,
+            "command_ratio": self.command_ratio,
+            "parameters": {
+                n: {"value": v, "std_error": self.fit.std_errors.get(n), "unit": units.get(n)}
+                for n, v in self.fit.values.items()
+                if n.startswith(self.effect + ".")
+            }
+            | (
+                {f"{self.effect}.samples": {"value": self.setting, "unit": "samples"}}
+                if self.setting is not None
+                else {}
+            ),
+            "train_rms_m": self.fit.train_rms_m,
+            "log_occam_factor": self.log_occam,
+            "validation_rms_by_experiment_m": [float(math.sqrt(m)) for m in self.validation_ms],
+            "why": self.reasons,
+        }
+
+
+def bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:
+    """Fraction of bootstrap resamples (of the units: validation moves) with mean reduction
+    ≤ 0."""
+    if len(d) == 0:
+        return 1.0
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(d), size=(n_boot, len(d)))
+    means = d[idx].mean(axis=1)
+    return float(np.mean(means <= 0.0))
+
+
+def indistinguishable(a: CandidateResult, b: CandidateResult) -> bool:
+    """Whether the validation data cannot tell candidates ``a`` and ``b`` apart: their RMS
+    gaps lie within 25 % of each other and the mean difference of their per-experiment mean
+    squares is within two standard errors (over the validation experiments). With fewer
+    than two validation experiments nothing can be told apart."""
+    d = a.validation_ms - b.validation_ms
+    if len(d) < 2:
+        return True
+    se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
+    close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
+        a.validation_rms_m, b.validation_rms_m
+    )
+    return close and abs(float(np.mean(d))) <= 2.0 * se
+
+
+def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> float:
+    """Log of the Occam factor of a candidate's own parameters (their ``names`` in
+    ``fit.values``): the factor by which the Laplace approximation of the Bayesian
+    evidence, with a uniform prior on the parameters' bounds, falls short of the best fit's
+    likelihood, minus log ``n_settings`` for a discrete candidate (one of its settings).
+
+    In the fit's normalised coordinates every parameter's bounds span 1 (log space for a
+    log parameter), so the factor is the posterior's volume √det(2πΣ), Σ the marginal
+    covariance of the candidate's own parameters (:attr:`Fit.unit_covariance`): small when
+    the data pin the parameters down to a sliver of their plausible ranges. Correlated
+    parameters pin down less volume than their standard errors alone say (√(1−ρ²) for two).
+    Each principal direction counts at most its whole range: ½ Σⱼ log min(1, 2πλⱼ) over
+    the eigenvalues λⱼ of Σ. A parameter the data do not constrain (variance 0 from the
+    pseudo-inverse, or not finite), and a direction of Σ with a numerically zero variance,
+    count as their whole range (factor 1)."""
+    out = -math.log(n_settings) if n_settings > 1 else 0.0
+    fitted = list(fit.values)
+    cov = fit.unit_covariance
+    if cov.shape != (len(fitted), len(fitted)):
+        return out  # no covariance (the standard errors are not finite either)
+    idx = [fitted.index(n) for n in names if n in fit.values]
+    sub = cov[np.ix_(idx, idx)]
+    keep = [
+        i
+        for i in range(len(idx))
+        if sub[i, i] > 0.0 and bool(np.all(np.isfinite(sub[i])) and np.all(np.isfinite(sub[:, i])))
+    ]
+    if not keep:
+        return out
+    sub = sub[np.ix_(keep, keep)]
+    lam = np.linalg.eigvalsh(sub)
+    tiny = float(np.max(lam)) * len(keep) * np.finfo(np.float64).eps
+    for v in lam:
+        if v > tiny:
+            out += 0.5 * math.log(min(1.0, 2.0 * math.pi * float(v)))
+    return out
+
+
+def pick_winner(
+    results: Sequence[CandidateResult], st: DiagnosisSettings
+) -> CandidateResult | None:
+    """The candidate a round selects from its results (best validation gap first): the
+    first significant one; with :attr:`DiagnosisSettings.occam_tie_break`, among it and the
+    significant candidates the data cannot tell from it, the one with the largest Occam
+    factor (the first in gap order when equal). None when nothing is significant."""
+    best = next((r for r in results if r.significant), None)
+    if best is None or not st.occam_tie_break:
+        return best
+    group = [r for r in results if r.significant and (r is best or indistinguishable(best, r))]
+    return max(group, key=lambda r: r.log_occam)

@@ -1,0 +1,149 @@
+"""Diagnosis settings: the knobs of one diagnosis run (starts, budgets, thresholds,
+threads) and the progress lines it prints."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..config import System
+from ..experiment import Experiment
+from .candidates import Candidate
+
+FloatArray = npt.NDArray[np.float64]
+#: The gap charged for a parameter set whose model is invalid or whose simulation fails, m.
+FAILED_GAP_M = 1e-3
+#: Turns the model into the system of one experiment (its controller gains).
+Adapt = Callable[[System, Experiment], System]
+
+__all__ = [
+    "DiagnosisSettings",
+    "print_progress",
+    "with_starts",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DiagnosisSettings:
+    """Knobs of the engine (defaults suit ~10 experiments in about a minute on 2 cores)."""
+
+    n_starts_nominal: int = 3
+    n_starts_candidate: int = 3
+    #: Starts of a friction-model candidate's refit in the first round (`lugre`, `gms`, …;
+    #: screening as :attr:`screen_starts_friction_models`; later rounds
+    #: :attr:`n_starts_candidate`: on the speed bench's backlash case six starts on top of
+    #: the hunting backlash took the diagnosis from 46 to 72 s). A friction model replaces
+    #: the table friction, so its warm start is not the model before, and its gap has many
+    #: basins: on the 12 presliding cases of benchmark seeds 22 and 23, the GMS candidate
+    #: fitted alone from 6 starts instead of 3 ended at a smaller training gap in 6 (by
+    #: 21–58 %), and its validation shrink rose in 5 of them (median of the 12 from 0.41
+    #: to 0.56).
+    n_starts_friction_models: int = 6
+    max_nfev_per_param: int = 12
+    diff_step: float = 0.03
+    bootstrap: int = 400
+    p_value: float = 0.05
+    penalty_base: float = 0.03
+    penalty_per_param: float = 0.02
+    floor_factor: float = 1.5
+    #: A candidate is significant only if the validation gap before exceeds this many
+    #: noise floors (0 turns the rule off). Measured in stop 14 on seeds 12 and 13: off, it
+    #: found three more dwell cases and made two false alarms in twelve no-effect cases.
+    explainable_factor: float = 1.5
+    #: Judge candidates with each validation experiment weighted by the inverse square of
+    #: its own noise floor (:func:`experiment_floors_m`) instead of one floor for all.
+    kind_floors: bool = True
+    command_tolerance: float = 1.1
+    forward_rounds: int = 3
+    forward_top: int = 8
+    refine_top: int = 4
+    #: Also refine the best-screened friction-model candidate outside the best
+    #: :attr:`refine_top`: a friction model replaces the table friction, so its screening
+    #: starts are not near the model before, and its screened gap says less about its best
+    #: fit than another candidate's (on a presliding case of seed 19 LuGre was among the
+    #: best four, the GMS candidate screened sixth, 108 nm, and refitted alone at 47 nm).
+    refine_best_friction_model: bool = True
+    #: Break a tie by the Occam factor (:func:`log_occam_factor`): among the significant
+    #: candidates the validation data cannot tell from the best (:func:`indistinguishable`),
+    #: select the one whose own parameters the data pin down most within their bounds (the
+    #: Laplace approximation of the Bayesian evidence with uniform priors on the bounds; the
+    #: likelihoods count as equal in a tie). Off: the smallest validation gap, a difference
+    #: within the noise. Measured on the stored reports of seven benchmark seeds (first
+    #: selections, offline, in-sample): 19 picks turned right, 4 wrong; on two seeds drawn
+    #: afterwards (22, 23) top-1 97.6 % and 95.2 % against 90.5 % and 88.1 % without it.
+    occam_tie_break: bool = True
+    #: Significant candidates of a round whose free values restart the model before
+    #: (refitting alone), the best first; None: every significant one, ≤ 0: none. With the
+    #: best two only (the default until stop 21), a third significant candidate could be
+    #: selected by the tie-break without its control: on the speed bench's delay case,
+    #: refitted friction models ranked ahead of the drive compliance whose free values had
+    #: restarted the delay model from 511 to 401 nm, and the compliance was selected as a
+    #: second effect.
+    refit_control_top: int | None = None
+    #: Points of the coarse scan over a candidate's own parameters before its local fits,
+    #: per parameter of the candidate (at most :attr:`scan_points_max`). The closed loop's
+    #: gap is rugged where stick-slip makes the response chaotic: on a dwell case the good
+    #: region of (rise, time constant) covered a few per cent of the box.
+    scan_points: int = 16
+    scan_points_max: int = 48
+    #: Local fits when screening a friction-model candidate (`lugre`, `gms`, …): from the
+    #: warm start and from the scan's best point (others: the better of the two only).
+    screen_starts_friction_models: int = 2
+    #: Points of the coarse scan over the free parameters before the first calibration.
+    scan_points_nominal: int = 24
+    #: Start values of candidates' own parameters, by candidate name and parameter name
+    #: (replacing each :class:`Param`'s ``initial``): prior knowledge of an effect, or the
+    #: benchmark's truth-started check (is the hidden effect detectable at all?).
+    candidate_starts: Mapping[str, Mapping[str, float]] | None = None
+    seed: int = 0
+    #: Threads of each batch of simulations (0: one per CPU).
+    workers: int = 0
+    #: Folds of the final cross-fit over the validation experiments (report ``crossfit``;
+    #: 0 turns it off): each validation experiment judged by the nominal and the selected
+    #: model refitted on all the other experiments.
+    crossfit_folds: int = 3
+    #: Candidates fitted at once within a round (Python threads; each fit's simulations
+    #: still run as batches on ``workers`` threads). The results do not depend on it.
+    parallel_candidates: int = 2
+    #: Memory for simulations kept for reuse within one diagnosis (:class:`SimulationCache`),
+    #: MB; 0 turns the reuse off. The results do not depend on it: a candidate's refit
+    #: repeats its screening's scan and local fits exactly, and these are looked up instead
+    #: of simulated again.
+    simulation_cache_mb: float = 512.0
+
+
+def with_starts(
+    cands: Sequence[Candidate], starts: Mapping[str, Mapping[str, float]] | None
+) -> list[Candidate]:
+    """``cands`` with the start values ``starts[name][param]`` as their parameters' initial
+    values (clipped to the bounds). An unknown parameter name raises ``ValueError``."""
+    if not starts:
+        return list(cands)
+    out = []
+    for c in cands:
+        given = starts.get(c.name, {})
+        names = [p.name for p in c.params]
+        unknown = sorted(set(given) - set(names))
+        if unknown:
+            raise ValueError(
+                f"candidate_starts[{c.name!r}]: unknown parameter(s) {', '.join(unknown)}; "
+                f"valid: {', '.join(names) or 'none (a discrete candidate)'}"
+            )
+        params = tuple(
+            dataclasses.replace(p, initial=min(max(float(given[p.name]), p.lower), p.upper))
+            if p.name in given
+            else p
+            for p in c.params
+        )
+        out.append(dataclasses.replace(c, params=params))
+    return out
+
+
+def print_progress(msg: str, enabled: bool) -> None:
+    if enabled:
+        print(msg, file=sys.stderr, flush=True)
