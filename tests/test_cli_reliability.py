@@ -391,7 +391,10 @@ WORK: dict[str, tuple[list[str], list[tuple[Any, str]]]] = {
     "diagnose-benchmark": (["--cases", "1"], [(benchmark, "_run_benchmark")]),
     "emps": (["--mat", "{junk_mat}"], [(emps_study, "load_emps")]),
     "iso230": (["{csv}"], [(iso230_2, "read_measurement_csv")]),
-    "predict": (["{manifest}"], [(importlib.import_module("nanostage.predict"), "predict")]),
+    "predict": (
+        ["{manifest}"],
+        [(importlib.import_module("nanostage.diagnosis.predict"), "predict")],
+    ),
 }
 
 

@@ -17,7 +17,7 @@ import pytest
 import nanostage as ns
 from nanostage import _core, presets
 from nanostage.config import replace_paths
-from nanostage.predict import PredictError, predict
+from nanostage.diagnosis.predict import PredictError, predict
 from nanostage.studies.emps import EmpsData, cascade_command_v, load_emps
 from nanostage.studies.emps_study import output_error_fit, simulate_experiment, yardstick
 

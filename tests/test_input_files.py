@@ -27,8 +27,8 @@ from nanostage.diagnosis import (
     read_trace,
     write_trace_csv,
 )
+from nanostage.diagnosis.predict import PredictError, predict, read_prediction_input
 from nanostage.experiment import Experiment
-from nanostage.predict import PredictError, predict, read_prediction_input
 
 SEED_TRAVEL_M = 0.05
 E = TypeVar("E", bound=BaseException)

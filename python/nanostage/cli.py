@@ -259,7 +259,7 @@ def _benchmark(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from .predict import predict
+    from .diagnosis.predict import predict
 
     check_output_dir(args.out)
     s = predict(
@@ -436,7 +436,7 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     bm.set_defaults(func=_benchmark, options={"cases": "--cases", "seed": "--seed"})
     pr = sub.add_parser("predict", help="simulate an identified model for given inputs")
-    pr.add_argument("manifest", help="TOML manifest (see nanostage.predict)")
+    pr.add_argument("manifest", help="TOML manifest (see nanostage.diagnosis.predict)")
     pr.add_argument("--out", default="prediction", help="output directory")
     _add_input_options(pr)
     pr.set_defaults(func=_predict)

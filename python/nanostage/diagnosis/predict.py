@@ -67,20 +67,20 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .diagnosis.manifest import (
+from ..output import OutputError, check_output_dir, staged_output, write_json
+from ..simulate import simulate
+from .manifest import (
     ManifestError,
     check_total_samples,
     load_prediction_manifest,
 )
-from .diagnosis.traces import (
+from .traces import (
     PREDICTION_COLUMNS,
     PREDICTION_MAX_SAMPLES_TOTAL,
     TraceError,
     TraceLimits,
     read_prediction_trace,
 )
-from .output import OutputError, check_output_dir, staged_output, write_json
-from .simulate import simulate
 
 __all__ = ["PredictError", "predict", "read_prediction_input"]
 
@@ -234,7 +234,7 @@ def _predict_one(
     vel = np.gradient(pos, tr.time_s)
     # The controller output in volts at the amplifier input (as the diagnosis converts it).
     command_v = tr.command * tr.output_unit_v
-    with file.open("w", newline="") as fh:
+    with file.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(OUTPUT_COLUMNS)
         for row in zip(cols["time_s"], cols["reference_m"], reading, vel, command_v, strict=True):
