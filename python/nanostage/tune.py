@@ -1088,16 +1088,15 @@ def markdown(report: dict[str, Any]) -> str:
 def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
     """Settling time against pooled A↑ of every evaluated candidate, the Pareto front, the
     Table 1 and the tuned gains; one panel per step size."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.ticker import LogFormatter
 
     steps = report["steps"]
     ncol = min(2, len(steps))
     nrow = math.ceil(len(steps) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 4.0 * nrow), squeeze=False)
+    fig = Figure(figsize=(5.2 * ncol, 4.0 * nrow))
+    axes = fig.subplots(nrow, ncol, squeeze=False)
     flat = list(axes.ravel())
     for ax in flat[len(steps) :]:
         ax.set_visible(False)
@@ -1145,7 +1144,6 @@ def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
     fig.suptitle("Every evaluated candidate (search draws); Table 1 and tuned on held-out draws")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def write_tune_report(
