@@ -496,7 +496,14 @@ def run_benchmark(
     check_output_dir(out_dir)
     with staged_output(out_dir, "diagnose-benchmark") as folder:
         return _run_benchmark(
-            folder, cases, seed, names, settings, progress=progress, truth_check=truth_check
+            folder,
+            cases,
+            seed,
+            names,
+            settings,
+            progress=progress,
+            truth_check=truth_check,
+            final=Path(out_dir),
         )
 
 
@@ -509,7 +516,10 @@ def _run_benchmark(
     *,
     progress: bool,
     truth_check: bool,
+    final: Path,
 ) -> dict[str, Any]:
+    """The cases, written into the staging folder ``out``; reports name the manifests at
+    their place in the ``final`` folder."""
     rows = []
     t0 = time.perf_counter()
     for c in range(cases):
@@ -519,7 +529,14 @@ def _run_benchmark(
         t = time.perf_counter()
         # Given settings keep the case's own random seed (the manifest's), as the defaults do.
         st = dc.replace(settings, seed=seed * 10_000 + c) if settings else None
-        d = diagnose(manifest, case_dir / "report", settings=st, progress=False, figures=False)
+        d = diagnose(
+            manifest,
+            case_dir / "report",
+            settings=st,
+            progress=False,
+            figures=False,
+            manifest_path=final / manifest.relative_to(out),
+        )
         rep = d.report
         found = rep["selected"][0] if rep["selected"] else "none"
         ok = found in ACCEPT.get(h, {h})

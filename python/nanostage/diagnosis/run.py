@@ -327,11 +327,14 @@ def diagnose(
     settings: DiagnosisSettings | None = None,
     progress: bool = True,
     figures: bool = True,
+    manifest_path: str | Path | None = None,
 ) -> Diagnosis:
     """Diagnose the gap between a nominal model and measured experiments (see the module
     docstring for the report). All input errors are raised before any fitting, and so is
     an unusable ``out_dir`` (:func:`nanostage.output.check_output_dir`); the folder is
-    written whole or not at all (:func:`nanostage.output.staged_output`)."""
+    written whole or not at all (:func:`nanostage.output.staged_output`).
+    ``manifest_path``: the manifest's path the report gives (default: where it was read;
+    a caller that reads it from a staging folder names its final place)."""
     if out_dir is not None:
         check_output_dir(out_dir)
     setup = _setup(manifest)
@@ -352,7 +355,7 @@ def diagnose(
     )
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
     report["crossfit"] = _crossfit(setup, out, st, _lead(nominal), progress)
-    report["manifest"] = str(m.path)
+    report["manifest"] = str(m.path if manifest_path is None else manifest_path)
     written = None
     if out_dir is not None:
         val = _validation_order(folds)
