@@ -43,6 +43,7 @@ from nanostage.effects import (
     StaticFrictionMap,
     StochasticFriction,
 )
+from nanostage.friction import friction_response
 from nanostage.simulate import simulate_batch, stop_on_interrupt
 
 SEED = ns.presets.seed(1e-4)
@@ -302,6 +303,31 @@ def test_ctrl_c_stops_the_runs_of_worker_threads_inside_stop_on_interrupt() -> N
         assert isinstance(e, ns.SimulationError) and str(e).startswith("interrupted at t = ")
     # Afterwards runs are not stopped.
     assert ns.simulate_step(SEED, 1e-4, duration_s=0.02).position_m.size == 20
+
+
+def test_ctrl_c_stops_a_friction_response_in_a_worker_thread_inside_stop_on_interrupt() -> None:
+    # 4 million samples of LuGre friction along a sine: seconds of work, stopped at 0.3 s.
+    f = ns.effects.LuGre(
+        stiffness_n_per_m=1e7,
+        damping_n_s_per_m=300.0,
+        viscous_n_s_per_m=10.0,
+        coulomb_force_n=20.0,
+        static_force_n=25.0,
+        stribeck_velocity_m_per_s=1e-3,
+    )
+    t = np.arange(4_000_000) * 1e-4
+    x = 1e-4 * np.sin(2 * np.pi * 5 * t)
+    v = 1e-4 * 2 * np.pi * 5 * np.cos(2 * np.pi * 5 * t)
+    with (
+        _sigint_after(0.3),
+        stop_on_interrupt(),
+        ThreadPoolExecutor(max_workers=1) as pool,
+    ):
+        future = pool.submit(friction_response, f, t, x, v)
+        with pytest.raises(KeyboardInterrupt):
+            future.result()
+    e = future.exception()
+    assert isinstance(e, ns.SimulationError) and str(e).startswith("interrupted at t = "), e
 
 
 # --------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import numpy.typing as npt
 from . import _core
 from .config import DahlFriction, IntegratorOptions
 from .effects import Gms, LuGre, PositionFriction, StaticFrictionMap
+from .simulate import interrupt_stop
 
 __all__ = ["FrictionModel", "friction_response"]
 
@@ -46,5 +47,11 @@ def friction_response(
             )
     terms = list(position_friction.terms) if position_friction is not None else []
     return _core.friction_response(
-        friction, t, x, v, integrator or IntegratorOptions(rtol=1e-8), terms
+        friction,
+        t,
+        x,
+        v,
+        integrator or IntegratorOptions(rtol=1e-8),
+        terms,
+        stop=interrupt_stop(),
     )

@@ -112,6 +112,12 @@ class OpenLoopTrace:
 _interrupt_stop: _core.StopFlag | None = None
 
 
+def interrupt_stop() -> _core.StopFlag | None:
+    """The stop flag of the innermost active :func:`stop_on_interrupt` block (None outside
+    one): the ``stop=`` argument every core run of the package passes."""
+    return _interrupt_stop
+
+
 @contextmanager
 def stop_on_interrupt() -> Iterator[None]:
     """Within the block, SIGINT (Ctrl-C) also stops the simulations that other threads of this
