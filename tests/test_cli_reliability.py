@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import nanostage
-from nanostage import iso230_2, output, tune
+from nanostage import iso230_2, output
 from nanostage.cli import Terminated, main
 from nanostage.diagnosis import benchmark
 from nanostage.diagnosis import run as diagnosis_run
@@ -33,7 +33,7 @@ from nanostage.output import (
     staged_output,
     write_json,
 )
-from nanostage.studies import emps, emps_study, paper_campaigns, reproduce
+from nanostage.studies import emps, emps_study, paper_campaigns, reproduce, table1
 
 from conftest import SHARED
 
@@ -386,7 +386,7 @@ WORK: dict[str, tuple[list[str], list[tuple[Any, str]]]] = {
         ["--campaigns"],
         [(reproduce, "reproduce_into"), (paper_campaigns, "write_paper_campaigns_into")],
     ),
-    "tune": (["--step-um", "100"], [(tune, "tune_table1")]),
+    "tune": (["--step-um", "100"], [(table1, "tune_table1")]),
     "diagnose": (["{manifest}"], [(diagnosis_run, "_setup")]),
     "diagnose-benchmark": (["--cases", "1"], [(benchmark, "_run_benchmark")]),
     "emps": (["--mat", "{junk_mat}"], [(emps_study, "load_emps")]),
@@ -515,7 +515,7 @@ def test_the_api_functions_stage_their_folders(tmp_path: Path) -> None:
         paper_campaigns.write_paper_campaigns(other, paper_campaigns.CampaignSettings(n_trials=1))
     report: dict[str, Any] = {"steps": [], "objective": {}}
     with pytest.raises(OutputError, match="folder of other files"):
-        tune.write_tune_report(other, report, plot=False)
+        table1.write_tune_report(other, report, plot=False)
     assert [p.name for p in other.iterdir()] == ["keep.txt"]
 
 

@@ -300,15 +300,8 @@ def _tune(args: argparse.Namespace) -> int:
     from .campaign import MAX_TRIALS
     from .checks import int_arg
     from .studies.paper_campaigns import check_threads
-    from .tune import (
-        Objective,
-        check_search,
-        markdown,
-        tune_table1,
-        tuning_cycle,
-        with_friction_spread,
-        write_tune_report,
-    )
+    from .studies.table1 import markdown, tune_table1, write_tune_report
+    from .tune import Objective, check_search, tuning_cycle, with_friction_spread
 
     # Every argument and the output folder are checked before any work.
     overshoot = None if args.overshoot_max_um is None else args.overshoot_max_um * 1e-6
