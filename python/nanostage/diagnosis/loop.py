@@ -101,7 +101,7 @@ class _Ctx:
             ]
             # Only its batch evaluation is used: the systems are built above.
             prob = FitProblem(
-                self.free, lambda v: base, train, self.st.workers, self.adapt, self.cache
+                self.free, lambda v: base, train, self.st.threads, self.adapt, self.cache
             )
             ms = [
                 math.inf if r is None else rms_of(r) ** 2 for r in prob.residuals_or_none(systems)
@@ -141,7 +141,7 @@ class _Ctx:
                 free + list(params),
                 self.builder(base, apply_extra),
                 train,
-                self.st.workers,
+                self.st.threads,
                 self.adapt,
                 self.cache,
             )
@@ -481,7 +481,7 @@ def crossfit_models(
                     at += len(cand.params)
             return s
 
-        return FitProblem(params, build, training, settings.workers, adapt, cache)
+        return FitProblem(params, build, training, settings.threads, adapt, cache)
 
     jobs = []
     for tr, judged in crossfit_folds(len(train), len(validate), k):

@@ -102,13 +102,13 @@ class DiagnosisSettings:
     candidate_starts: Mapping[str, Mapping[str, float]] | None = None
     seed: int = 0
     #: Threads of each batch of simulations (0: one per CPU).
-    workers: int = 0
+    threads: int = 0
     #: Folds of the final cross-fit over the validation experiments (report ``crossfit``;
     #: 0 turns it off): each validation experiment judged by the nominal and the selected
     #: model refitted on all the other experiments.
     crossfit_folds: int = 3
     #: Candidates fitted at once within a round (Python threads; each fit's simulations
-    #: still run as batches on ``workers`` threads). The results do not depend on it.
+    #: still run as batches on ``threads`` threads). The results do not depend on it.
     parallel_candidates: int = 2
     #: Memory for simulations kept for reuse within one diagnosis (:class:`SimulationCache`),
     #: MB; 0 turns the reuse off. The results do not depend on it: a candidate's refit
