@@ -1,4 +1,4 @@
-"""Friction identification from component data (issue 3).
+"""Friction identification from component data.
 
 Fit a friction model to measured ``(time, displacement, velocity, force)`` records of a
 component (a guide, a screw, a whole axis pushed by a force-controlled drive), estimate the

@@ -52,7 +52,7 @@ class DiagnosisSettings:
     penalty_per_param: float = 0.02
     floor_factor: float = 1.5
     #: A candidate is significant only if the validation gap before exceeds this many
-    #: noise floors (0 turns the rule off). Measured in stop 14 on seeds 12 and 13: off, it
+    #: noise floors (0 turns the rule off). Measured on benchmark seeds 12 and 13: off, it
     #: found three more dwell cases and made two false alarms in twelve no-effect cases.
     explainable_factor: float = 1.5
     #: Judge candidates with each validation experiment weighted by the inverse square of
@@ -79,7 +79,7 @@ class DiagnosisSettings:
     occam_tie_break: bool = True
     #: Significant candidates of a round whose free values restart the model before
     #: (refitting alone), the best first; None: every significant one, ≤ 0: none. With the
-    #: best two only (the default until stop 21), a third significant candidate could be
+    #: best two only (an earlier default), a third significant candidate could be
     #: selected by the tie-break without its control: on the speed bench's delay case,
     #: refitted friction models ranked ahead of the drive compliance whose free values had
     #: restarted the delay model from 511 to 401 nm, and the compliance was selected as a
