@@ -5,7 +5,7 @@
 //! criterion bench for the rigid seed loop and each component-plant case, printing the best
 //! wall time of REPS runs (default 20), the integrator's counters and a checksum of the
 //! positions (to see whether a change moved the trajectory). `CASE` filters by name.
-use nanostage::drive::{DwellStatic, Link, TableFriction};
+use nanostage::model::{DwellStatic, Link, TableFriction};
 use nanostage::presets::{seed_closed_loop, speed_case_backlash_link, speed_case_gms6};
 use nanostage::sim::{run_extended, ExtendedConfig, KnownInputs};
 use std::time::Instant;
@@ -36,7 +36,7 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
         _ => 1.0,
     };
     let mut cv = general;
-    cv.drive.table_friction = TableFriction::Static(nanostage::drive::StaticMap {
+    cv.drive.table_friction = TableFriction::Static(nanostage::model::StaticMap {
         static_force_n: fc,
         coulomb_force_n: fc,
         viscous_n_s_per_m: 100.0,
@@ -48,7 +48,7 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
         memory_lag_s: None,
     });
     let mut lugre = general;
-    lugre.drive.table_friction = TableFriction::LuGre(nanostage::drive::LuGre {
+    lugre.drive.table_friction = TableFriction::LuGre(nanostage::model::LuGre {
         stiffness_n_per_m: 1e7,
         damping_n_s_per_m: 0.0,
         viscous_n_s_per_m: 0.0,
@@ -72,7 +72,7 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
     let mut all = bl;
     all.drive.table_friction = gms;
     let mut amp = general;
-    amp.drive.amplifier = Some(nanostage::drive::Amplifier {
+    amp.drive.amplifier = Some(nanostage::model::Amplifier {
         bandwidth_hz: 300.0,
         slew_v_per_s: 1e9,
     });

@@ -7,7 +7,6 @@
 #![deny(missing_docs)]
 
 pub mod control;
-pub mod drive;
 pub mod error;
 pub mod integrate;
 pub mod model;

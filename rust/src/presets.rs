@@ -118,8 +118,8 @@ pub fn seed_closed_loop(step_m: f64) -> ClosedLoopConfig {
 /// The heavy table friction of the issue-3 speed cases (criterion bench
 /// `closed_loop_1s_gms6*` and `examples/profile_drive.rs`): a six-element Generalized
 /// Maxwell-Slip model at the seed's Coulomb level, static level 36 N.
-pub fn speed_case_gms6() -> crate::drive::TableFriction {
-    crate::drive::TableFriction::Gms(crate::drive::Gms {
+pub fn speed_case_gms6() -> crate::model::TableFriction {
+    crate::model::TableFriction::Gms(crate::model::Gms {
         n_elements: 6,
         stiffness_n_per_m: [3e7, 2e7, 1e7, 6e6, 4e6, 2e6, 1.0, 1.0],
         weights: [0.1, 0.15, 0.2, 0.2, 0.2, 0.15, 0.0, 0.0],
@@ -132,8 +132,8 @@ pub fn speed_case_gms6() -> crate::drive::TableFriction {
 
 /// The drive-train link of the issue-3 speed cases: the seed's 20 µm gearhead backlash at
 /// the table with a compliant coupling (two-mass drive train).
-pub fn speed_case_backlash_link() -> crate::drive::Link {
-    crate::drive::Link {
+pub fn speed_case_backlash_link() -> crate::model::Link {
+    crate::model::Link {
         stiffness_n_per_m: 4.9e7,
         damping_n_s_per_m: 2e3,
         backlash_m: 20e-6,

@@ -1,6 +1,6 @@
 //! The component plant against the rigid seed plant, and effect physics that are cheapest to
 //! check in Rust.
-use nanostage::drive::{AnyDrivePlant, DriveParams, Inputs, Link};
+use nanostage::model::{AnyDrivePlant, DriveParams, Inputs, Link};
 use nanostage::presets::{seed_axis, seed_closed_loop};
 use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
 use nanostage::SimError;
@@ -58,7 +58,7 @@ fn component_plant_holds_still_below_breakaway() {
 /// `TooManyEvents` (time, state), while the default budget lets it complete.
 #[test]
 fn the_event_budget_of_a_control_interval_ends_a_run() {
-    use nanostage::drive::{StaticMap, TableFriction};
+    use nanostage::model::{StaticMap, TableFriction};
     use nanostage::sim::run_drive_open_loop;
     let mut ext = ExtendedConfig::from_closed_loop(&seed_closed_loop(1e-4));
     ext.drive.motor_friction = None;

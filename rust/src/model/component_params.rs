@@ -1,11 +1,11 @@
 //! Parameters of the component plant: the drive train as a chain of masses with friction
 //! components on each side, drive electronics, and the effect modifiers. SI units, units in
 //! the names; each field's doc gives its valid range and `validate()` enforces exactly that.
-use crate::error::{check_positive, check_range, ConfigError};
-use crate::model::{
+use super::params::{
     AxisParams, BallScrew, DahlFriction, Gearhead, Motor, MIN_COULOMB_FORCE_N, MIN_MASS_KG,
     MIN_PRESLIDING_STIFFNESS_N_PER_M, MIN_ROTOR_INERTIA_KG_M2,
 };
+use crate::error::{check_positive, check_range, ConfigError};
 
 /// Most Maxwell-slip elements of a GMS model.
 pub const MAX_GMS_ELEMENTS: usize = 8;
@@ -256,7 +256,7 @@ impl StaticMap {
     /// The motor-shaft Stribeck map of the seed axis reflected to the table through
     /// `r = P/(2πN)` and efficiency `η`: forces `η·T/r`, velocity `ω·r`, viscous `η·b/r²`.
     pub fn from_motor_stribeck(p: &AxisParams) -> Self {
-        let r = p.screw.lead_m / (2.0 * std::f64::consts::PI * p.gearhead.ratio);
+        let r = p.screw.metres_per_motor_radian(&p.gearhead);
         let eta = p.gearhead.efficiency * p.screw.efficiency;
         let f = &p.motor_friction;
         Self {

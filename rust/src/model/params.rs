@@ -192,6 +192,19 @@ impl Gearhead {
 }
 
 impl BallScrew {
+    /// Transmission r = P/(2πN) of this screw behind a gearhead of ratio N: table metres per
+    /// motor radian.
+    #[inline]
+    pub fn metres_per_motor_radian(&self, gearhead: &Gearhead) -> f64 {
+        self.lead_m / (2.0 * std::f64::consts::PI * gearhead.ratio)
+    }
+
+    /// 2π/P: screw radians per table metre.
+    #[inline]
+    pub fn screw_radians_per_metre(&self) -> f64 {
+        2.0 * std::f64::consts::PI / self.lead_m
+    }
+
     /// Validate against the documented ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
         check_range("lead_m", self.lead_m, MIN_LEAD_M, 0.1)?;

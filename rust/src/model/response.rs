@@ -2,8 +2,8 @@
 //! measured (time, position, velocity) record. Used by the friction identification and by
 //! the tests of each model's physics. Between samples the velocity and position are
 //! interpolated linearly; the internal states are integrated by RODAS4.
-use super::model::Drive;
-use super::params::{Modulation, TableFriction};
+use super::component::Drive;
+use super::component_params::{Modulation, TableFriction};
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd};
 use nalgebra::{SMatrix, SVector};
@@ -136,7 +136,7 @@ pub fn friction_response_polled(
         )
         .into());
     }
-    let mut probe = crate::drive::DriveParams::from_axis(&crate::presets::seed_axis());
+    let mut probe = crate::model::DriveParams::from_axis(&crate::presets::seed_axis());
     probe.table_friction = *friction;
     probe.table_modulation = *modulation;
     probe.validate().map_err(|e| e.within("friction"))?;

@@ -50,8 +50,8 @@ impl Axis {
     /// Validate the parameters and derive the lumped constants.
     pub fn new(params: AxisParams) -> Result<Self, ConfigError> {
         params.validate()?;
-        let r = params.screw.lead_m / (2.0 * std::f64::consts::PI * params.gearhead.ratio);
-        let k = 2.0 * std::f64::consts::PI / params.screw.lead_m;
+        let r = params.screw.metres_per_motor_radian(&params.gearhead);
+        let k = params.screw.screw_radians_per_metre();
         let eta = params.gearhead.efficiency * params.screw.efficiency;
         Ok(Self {
             params,

@@ -7,10 +7,9 @@ use super::arrays::{optional_series, put_arrays, stats_dict, trace_dict};
 use super::errors::{config_err, extract_config, sim_err};
 use super::extract::{PyAnyFriction, PyCascade, PyFxp, PyIntegrator, PyPid, PyPlant, PySystem};
 use crate::control::{Cascade, Pid};
-use crate::drive::{Modulation, TableFriction};
 use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::IntegratorOptions;
-use crate::model::{AxisParams, DahlFriction};
+use crate::model::{AxisParams, DahlFriction, Modulation, TableFriction};
 use crate::sim::{
     build_system, modulation, run_drive_open_loop_polled, run_extended_polled,
     run_open_loop_polled, ExtendedConfig, FxpSpec, KnownInputs, PidSpec, Trace,
@@ -379,7 +378,7 @@ fn friction_response<'py>(
     );
     let mut signals = SignalPoll::new(stop_of(stop));
     let f = py.detach(|| {
-        crate::drive::friction_response_polled(&tf, &m, &t, &x, &v, &opts, &mut || signals.poll())
+        crate::model::friction_response_polled(&tf, &m, &t, &x, &v, &opts, &mut || signals.poll())
     });
     let f = signals.finish(f)?;
     Ok(f.into_pyarray(py).into_any())

@@ -2,10 +2,12 @@
 //! read by field name (the field names are the contract) and converted into the core's
 //! structs and specs, and the way back for the seed preset's values ([`seed_values`]).
 use crate::control::{AntiWindup, CascadeConfig, FxpFormat, OutputStage, Overflow, Rounding};
-use crate::drive::{DwellStatic, Gms, LuGre, StaticMap, TableFriction, MAX_GMS_ELEMENTS};
 use crate::error::ConfigError as CoreConfigError;
 use crate::integrate::IntegratorOptions;
-use crate::model::{AxisParams, BallScrew, DahlFriction, Gearhead, Motor, StribeckFriction, Table};
+use crate::model::{
+    AxisParams, BallScrew, DahlFriction, DwellStatic, Gearhead, Gms, LuGre, Motor, StaticMap,
+    StribeckFriction, Table, TableFriction, MAX_GMS_ELEMENTS,
+};
 use crate::sim::{
     BacklashSpec, ComplianceSpec, ControllerSpec, EffectsSpec, EncoderErrorsSpec, EncoderSpec,
     ForceDriveSpec, FrictionModifiersSpec, FxpSpec, Interferometer, PidSpec, PlantSpec,
@@ -556,7 +558,7 @@ impl PySystem {
                     axial_stiffness_n_per_m: c.axial_stiffness_n_per_m,
                     axial_damping_n_s_per_m: c.axial_damping_n_s_per_m,
                 }),
-                amplifier: fx.amplifier.as_ref().map(|a| crate::drive::Amplifier {
+                amplifier: fx.amplifier.as_ref().map(|a| crate::model::Amplifier {
                     bandwidth_hz: a.bandwidth_hz,
                     slew_v_per_s: a.slew_v_per_s,
                 }),

@@ -8,13 +8,12 @@ use super::extended::{
 use crate::control::{
     AntiWindup, CascadeConfig, Encoder, FxpFormat, OutputStage, Overflow, PidConfig, Rounding,
 };
-use crate::drive::{
-    Actuator, Amplifier, DriveParams, DwellStatic, Link, Modulation, Side, StaticMap,
-    TableFriction, MAX_MODULATION_TERMS,
-};
 use crate::error::ConfigError;
 use crate::integrate::IntegratorOptions;
-use crate::model::AxisParams;
+use crate::model::{
+    Actuator, Amplifier, AxisParams, DriveParams, DwellStatic, Link, Modulation, Side, StaticMap,
+    TableFriction, MAX_MODULATION_TERMS,
+};
 
 /// A fixed-point format with its rounding and overflow named.
 #[derive(Debug, Clone, PartialEq)]

@@ -3,10 +3,11 @@
 //! friction and known disturbances. With everything off it runs the rigid seed plant.
 use super::trial::{check_samples, ClosedLoopConfig, Trace};
 use crate::control::{flags, Cascade, CascadeConfig, Encoder, OutputStage, Pid, PidConfig};
-use crate::drive::{AnyDrivePlant, DriveParams, Inputs, MassMode, Side};
 use crate::error::{check_range, ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, Rodas4, Stats};
-use crate::model::{Axis, AxisParams, Mode, Plant};
+use crate::model::{
+    AnyDrivePlant, Axis, AxisParams, DriveParams, Inputs, MassMode, Mode, Plant, Side,
+};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64Mcg;
