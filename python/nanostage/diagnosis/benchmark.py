@@ -503,7 +503,7 @@ def run_benchmark(
             settings,
             progress=progress,
             truth_check=truth_check,
-            final=Path(out_dir),
+            final=Path(out_dir).expanduser().absolute(),
         )
 
 
