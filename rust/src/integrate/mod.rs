@@ -25,6 +25,10 @@ pub use rodas::{
 
 use nalgebra::{SMatrix, SVector};
 
+/// Samples of a run (a control loop's, an open loop's, a friction response's) between two
+/// polls of its stop request.
+pub const POLL_EVERY_SAMPLES: usize = 16;
+
 /// An autonomous ODE `dy/dt = f(y)` of fixed dimension `N` (inputs are held constant by the
 /// caller over a segment), with an analytic Jacobian and an optional event function.
 pub trait OdeSystem<const N: usize> {

@@ -181,7 +181,7 @@ pub fn friction_response_polled(
     let mut out = Vec::with_capacity(n);
     out.push(finite(force(&y, 0), 0, &y)?);
     for k in 1..n {
-        if k % crate::sim::POLL_EVERY_SAMPLES == 0 && poll() {
+        if k % crate::integrate::POLL_EVERY_SAMPLES == 0 && poll() {
             return Err(SimError::Interrupted { t_s: time_s[k] });
         }
         let sys = Prescribed {

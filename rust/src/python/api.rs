@@ -168,7 +168,7 @@ fn simulate_system<'py>(
     trace_dict(py, signals.finish(tr)?)
 }
 
-/// Run the closed loops of several `System`s at once, in parallel (rayon, `threads` workers;
+/// Run the closed loops of several `System`s at once, in parallel (rayon, on `threads` threads;
 /// 0: rayon's default pool) with the GIL released once for the whole batch; returns the
 /// dicts of [`simulate_system`] in the order given. Every configuration is checked before any
 /// simulation starts; the first failed run (in the order given) raises its error.
@@ -292,7 +292,7 @@ fn simulate_system_batch<'py>(
     Ok(out)
 }
 
-/// The rayon pool of `threads` workers for [`simulate_system_batch`], built once per thread
+/// The rayon pool of `threads` threads for [`simulate_system_batch`], built once per thread
 /// count and kept (the diagnosis calls the batch thousands of times); `None` for 0 (rayon's
 /// default pool) or if a pool cannot be built (the batch then runs on the default pool).
 fn batch_pool(threads: usize) -> Option<Arc<rayon::ThreadPool>> {

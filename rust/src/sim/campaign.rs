@@ -12,7 +12,7 @@
 //! cut short or never started are reported as such. Every trial's work is bounded (the
 //! integrator's `max_steps` and `max_events` per control interval), so every trial gets a
 //! status. Invalid input is a [`ConfigError`] before any trial runs.
-use super::extended::{run_extended_at, stream_seed, ExtendedConfig, KnownInputs};
+use super::closed_loop::{run_extended_at, stream_seed, ExtendedConfig, KnownInputs};
 use crate::error::{ConfigError, SimError};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};

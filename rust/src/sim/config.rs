@@ -2,7 +2,7 @@
 //! and how the effects map onto the plant: [`build_system`] turns a [`SystemSpec`] into the
 //! [`ExtendedConfig`] a run needs. Names given as text (rounding, sides, distributions) are
 //! parsed here, so every configuration error of a system comes from the core.
-use super::extended::{
+use super::closed_loop::{
     ControllerKind, ExtendedConfig, Interferometer, Sensors, SpreadDistribution, StochasticFriction,
 };
 use crate::control::{

@@ -1,18 +1,48 @@
-//! The closed loop with every effect of the library: component plant, FPGA PID or cascade
-//! controller, sensor errors and delays, computation delay, sample jitter, stochastic
-//! friction and known disturbances. With everything off it runs the rigid seed plant.
-use super::trial::{check_samples, ClosedLoopConfig, Trace};
+//! The closed loop: sample → controller → hold → integrate to the next event in time, with
+//! every effect of the library: component plant, FPGA PID or cascade controller, sensor
+//! errors and delays, computation delay, sample jitter, stochastic friction and known
+//! disturbances. With everything off it runs the rigid seed plant.
+use super::plant::AnyPlant;
+use super::trace::{check_samples, check_series, Measured, Trace};
 use crate::control::{flags, Cascade, CascadeConfig, Encoder, OutputStage, Pid, PidConfig};
 use crate::error::{check_range, ConfigError, SimError};
-use crate::integrate::{IntegratorOptions, Rodas4, Stats};
-use crate::model::{
-    AnyDrivePlant, Axis, AxisParams, DriveParams, Inputs, MassMode, Mode, Plant, Side,
-};
+use crate::integrate::{IntegratorOptions, Stats, POLL_EVERY_SAMPLES};
+use crate::model::{AxisParams, DriveParams, Inputs, Side};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64Mcg;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Everything a closed-loop run needs besides the reference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClosedLoopConfig {
+    /// The plant.
+    pub axis: AxisParams,
+    /// The FPGA loop.
+    pub pid: PidConfig,
+    /// The encoder.
+    pub encoder: Encoder,
+    /// DAC → amplifier → motor.
+    pub output: OutputStage,
+    /// Integrator options.
+    pub integrator: IntegratorOptions,
+}
+
+impl ClosedLoopConfig {
+    /// Validate every part; errors carry the dotted field path.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.axis.validate().map_err(|e| e.within("plant"))?;
+        self.pid.validate().map_err(|e| e.within("controller"))?;
+        self.encoder.validate().map_err(|e| e.within("encoder"))?;
+        self.output
+            .validate()
+            .map_err(|e| e.within("output_stage"))?;
+        self.integrator
+            .validate()
+            .map_err(|e| e.within("integrator"))
+    }
+}
 
 /// The controller of the loop.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -249,96 +279,6 @@ pub struct KnownInputs<'a> {
     pub command_v: &'a [f64],
 }
 
-enum AnyPlant {
-    Rigid(Box<Plant>),
-    Drive(AnyDrivePlant),
-}
-
-impl AnyPlant {
-    fn advance(
-        &mut self,
-        inp: &Inputs,
-        t0: f64,
-        t1: f64,
-        poll: &mut dyn FnMut() -> bool,
-    ) -> Result<(), SimError> {
-        if t1 <= t0 {
-            return Ok(());
-        }
-        match self {
-            Self::Rigid(p) => p.advance_polled(inp.u_v, t0, t1, poll),
-            Self::Drive(p) => p.advance_polled(inp, t0, t1, poll),
-        }
-    }
-
-    /// (table position, motor-side position): what the sensors need (equal to the first two
-    /// entries of [`Self::observe`]).
-    #[inline]
-    fn positions(&self) -> (f64, f64) {
-        match self {
-            Self::Rigid(p) => (p.y[0], p.y[0]),
-            Self::Drive(p) => {
-                let y = p.state();
-                (y[2 * p.drive().table()], y[0])
-            }
-        }
-    }
-
-    /// (table position, motor-side position, table velocity, current, motor friction,
-    /// table friction, stuck)
-    fn observe(&self, inp: &Inputs) -> (f64, f64, f64, f64, f64, f64, bool) {
-        match self {
-            Self::Rigid(p) => (
-                p.y[0],
-                p.y[0],
-                p.y[1],
-                p.current(inp.u_v),
-                p.axis.motor_friction_force(&p.y, p.mode, inp.u_v),
-                p.y[2],
-                p.mode == Mode::Stuck,
-            ),
-            Self::Drive(p) => {
-                let d = p.drive();
-                let y = p.state();
-                let modes = p.modes();
-                let t = d.table();
-                let (fm, ft) = d.friction_forces(y, inp, &modes);
-                (
-                    y[2 * t],
-                    y[0],
-                    y[2 * t + 1],
-                    d.current_a(y, inp),
-                    fm,
-                    ft,
-                    modes[0] == MassMode::Stuck || modes[t] == MassMode::Stuck,
-                )
-            }
-        }
-    }
-
-    fn stats(&self) -> Stats {
-        match self {
-            Self::Rigid(p) => p.integrator.stats,
-            Self::Drive(p) => p.stats(),
-        }
-    }
-
-    /// [`SimError::NonFinite`] at `t_s` (with the plant's state) unless every value of
-    /// `observed` is finite: a recorded channel that is not finite is an error, never output.
-    fn check_finite(&self, t_s: f64, observed: &[f64]) -> Result<(), SimError> {
-        if observed.iter().all(|v| v.is_finite()) {
-            return Ok(());
-        }
-        Err(SimError::NonFinite {
-            t_s,
-            state: match self {
-                Self::Rigid(p) => p.y.iter().copied().collect(),
-                Self::Drive(p) => p.state().to_vec(),
-            },
-        })
-    }
-}
-
 /// Derive the stream seed of one purpose from the run seed (SplitMix64 finaliser).
 pub fn stream_seed(seed: u64, stream: u64) -> u64 {
     let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
@@ -347,30 +287,23 @@ pub fn stream_seed(seed: u64, stream: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-fn check_series(name: &str, v: &[f64], n: usize) -> Result<(), ConfigError> {
-    if !v.is_empty() && v.len() != n {
-        return Err(ConfigError::new(
-            format!("{name} (length)"),
-            v.len(),
-            format!("0 (none) or the reference length {n}"),
-        ));
-    }
-    if let Some((k, x)) = v.iter().enumerate().find(|(_, x)| !x.is_finite()) {
-        return Err(ConfigError::new(
-            format!("{name}[{k}]"),
-            x,
-            "a finite number",
-        ));
-    }
-    Ok(())
+/// The stop request of a run: `flag` set from outside (`None`: never).
+fn flag_poll(flag: Option<&AtomicBool>) -> impl FnMut() -> bool + '_ {
+    move || flag.is_some_and(|f| f.load(Ordering::Relaxed))
 }
 
-/// Control samples between two polls of a run's stop request.
-pub const POLL_EVERY_SAMPLES: usize = 16;
-
-/// The stop request of a run: `flag` set from outside (`None`: never).
-pub(crate) fn flag_poll(flag: Option<&AtomicBool>) -> impl FnMut() -> bool + '_ {
-    move || flag.is_some_and(|f| f.load(Ordering::Relaxed))
+/// Run the closed loop over `reference_m` (one value per control sample). `stop` is polled
+/// every [`POLL_EVERY_SAMPLES`] samples; when set the run ends with
+/// [`SimError::Interrupted`]. This is
+/// [`run_extended`] with every effect off.
+pub fn run_closed_loop(
+    cfg: &ClosedLoopConfig,
+    reference_m: &[f64],
+    stop: Option<&AtomicBool>,
+) -> Result<Trace, SimError> {
+    cfg.validate()?;
+    let ext = ExtendedConfig::from_closed_loop(cfg);
+    run_extended(&ext, reference_m, KnownInputs::default(), stop)
 }
 
 /// Run the extended closed loop over `reference_m` (one value per control sample). `stop`
@@ -398,17 +331,6 @@ pub fn run_extended_polled(
     let stats = run_loop(cfg, reference_m, known, poll, &mut Sink::Trace(&mut tr))?;
     tr.stats = stats;
     Ok(tr)
-}
-
-/// What a run measured at chosen samples only (see [`run_extended_at`]).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Measured {
-    /// True table position at each chosen sample, m.
-    pub position_m: Vec<f64>,
-    /// Encoder reading (before any reading delay) at each chosen sample, counts.
-    pub encoder_counts: Vec<i64>,
-    /// Integrator work counters.
-    pub stats: Stats,
 }
 
 /// [`run_extended`] keeping only the table position and the encoder reading at the samples
@@ -473,20 +395,13 @@ fn run_loop(
     // per-trial level factor only scales its friction levels (the same levels the component
     // plant's `friction_scale` multiplies), so Monte Carlo trials keep the fast path.
     let rigid_ok = known.force_n.is_empty() && !fluctuating;
-    let mut plant = match (&cfg.axis, rigid_ok) {
-        (Some(axis), true) if DriveParams::from_axis(axis) == cfg.drive => {
-            let a = Axis::new(axis.with_friction_scale(level)).map_err(|e| e.within("plant"))?;
-            let integ = Rodas4::new(cfg.integrator).map_err(|e| e.within("integrator"))?;
-            AnyPlant::Rigid(Box::new(Plant::new(a, integ)))
-        }
-        _ => AnyPlant::Drive(
-            AnyDrivePlant::new(cfg.drive, cfg.integrator).map_err(|e| e.within("plant"))?,
-        ),
-    };
-    match &mut plant {
-        AnyPlant::Rigid(p) => p.y[0] = cfg.initial_position_m,
-        AnyPlant::Drive(p) => p.set_position(cfg.initial_position_m),
-    }
+    let mut plant = AnyPlant::new(
+        &cfg.drive,
+        cfg.axis.as_ref().filter(|_| rigid_ok),
+        level,
+        cfg.integrator,
+    )?;
+    plant.set_position(cfg.initial_position_m);
     let t_s = cfg.sample_period_s();
     let latency_s = match &cfg.controller {
         ControllerKind::Fpga { pid, .. } => pid.latency_ticks as f64 / pid.clock_hz,
@@ -666,7 +581,7 @@ fn run_loop(
         }
         let t_update = t_n + latency_s;
         let inp_new = Inputs { u_v: u_new, ..inp };
-        if inp_new == inp && matches!(plant, AnyPlant::Rigid(_)) {
+        if inp_new == inp && plant.is_rigid() {
             // The update leaves the held input as it is (e.g. at the voltage limit): the
             // plant's ODE is the same on both sides of the update instant, so one segment.
             plant.advance(&inp, t_n, times[k + 1], poll)?;
@@ -677,85 +592,4 @@ fn run_loop(
         u_held = u_new;
     }
     Ok(plant.stats())
-}
-
-/// What an open-loop run of the component plant recorded, at t_k = k·T for k = 0..=n.
-#[derive(Debug, Clone, Default)]
-pub struct DriveOpenLoopTrace {
-    /// Sample instants, s.
-    pub time_s: Vec<f64>,
-    /// Table position, m.
-    pub position_m: Vec<f64>,
-    /// Motor-side position at the table, m.
-    pub motor_position_m: Vec<f64>,
-    /// Table velocity, m/s.
-    pub velocity_m_per_s: Vec<f64>,
-    /// Motor-side friction force, N.
-    pub motor_friction_force_n: Vec<f64>,
-    /// Table friction force, N.
-    pub table_friction_force_n: Vec<f64>,
-    /// Motor side or table stuck.
-    pub stuck: Vec<bool>,
-    /// Integrator work counters.
-    pub stats: Stats,
-}
-
-/// Drive the component plant of `cfg` alone: `voltage_v[k]` (actuator command) and
-/// `force_n[k]` (empty: none) held on `[k·T, (k+1)·T)`. Starts at rest.
-pub fn run_drive_open_loop(
-    cfg: &ExtendedConfig,
-    voltage_v: &[f64],
-    force_n: &[f64],
-    sample_period_s: f64,
-) -> Result<DriveOpenLoopTrace, SimError> {
-    run_drive_open_loop_polled(cfg, voltage_v, force_n, sample_period_s, &mut || false)
-}
-
-/// [`run_drive_open_loop`] asking `poll` every [`POLL_EVERY_SAMPLES`] samples whether to
-/// stop (true: [`SimError::Interrupted`]).
-pub fn run_drive_open_loop_polled(
-    cfg: &ExtendedConfig,
-    voltage_v: &[f64],
-    force_n: &[f64],
-    sample_period_s: f64,
-    poll: &mut dyn FnMut() -> bool,
-) -> Result<DriveOpenLoopTrace, SimError> {
-    crate::error::check_positive("sample_period_s", sample_period_s, 10.0)?;
-    let n = voltage_v.len();
-    check_samples(n)?;
-    check_series("voltage_v", voltage_v, n)?;
-    check_series("force_n", force_n, n)?;
-    let mut plant = AnyPlant::Drive(
-        AnyDrivePlant::new(cfg.drive, cfg.integrator).map_err(|e| e.within("plant"))?,
-    );
-    let mut tr = DriveOpenLoopTrace::default();
-    let record = |plant: &AnyPlant, t: f64, inp: &Inputs, tr: &mut DriveOpenLoopTrace| {
-        let (x_t, x_m, v_t, _, f_m, f_t, stuck) = plant.observe(inp);
-        plant.check_finite(t, &[x_t, x_m, v_t, f_m, f_t])?;
-        tr.time_s.push(t);
-        tr.position_m.push(x_t);
-        tr.motor_position_m.push(x_m);
-        tr.velocity_m_per_s.push(v_t);
-        tr.motor_friction_force_n.push(f_m);
-        tr.table_friction_force_n.push(f_t);
-        tr.stuck.push(stuck);
-        Ok::<(), SimError>(())
-    };
-    let mut inp = Inputs::voltage(0.0);
-    for (k, &u_v) in voltage_v.iter().enumerate() {
-        inp = Inputs {
-            u_v,
-            force_n: force_n.get(k).copied().unwrap_or(0.0),
-            friction_scale: 1.0,
-        };
-        let t0 = k as f64 * sample_period_s;
-        if k % POLL_EVERY_SAMPLES == 0 && poll() {
-            return Err(SimError::Interrupted { t_s: t0 });
-        }
-        record(&plant, t0, &inp, &mut tr)?;
-        plant.advance(&inp, t0, (k + 1) as f64 * sample_period_s, poll)?;
-    }
-    record(&plant, n as f64 * sample_period_s, &inp, &mut tr)?;
-    tr.stats = plant.stats();
-    Ok(tr)
 }
