@@ -9,6 +9,7 @@
 //! takes the rigid plant's steps.
 use super::component_params::{Actuator, DriveParams, Modulation, TableFriction};
 use super::friction::{modulation, smoothstep, GMS_ELASTIC_FRACTION};
+use super::hybrid::{self, HybridPlant, StuckPhase};
 use super::params::DahlFriction;
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd, Stats};
@@ -875,9 +876,6 @@ impl<const N: usize> OdeSystem<N> for Segment<'_> {
     }
 }
 
-/// Events at one instant beyond which the mode logic is considered chattering (Zeno guard).
-const MAX_EVENTS_AT_ONE_INSTANT: usize = 4;
-
 /// A running component plant with state padded to `N`.
 #[derive(Debug, Clone)]
 pub struct DrivePlant<const N: usize> {
@@ -1034,7 +1032,117 @@ where
         Some(t0 + b)
     }
 
-    fn resolve(&mut self, inp: &Inputs, force_stuck: bool) {
+    /// Advance from `t0` to `t1` with the inputs held, handling stick/slip events.
+    ///
+    /// A stuck phase of a one-mass chain without amplifier state is solved in closed form
+    /// (`stuck_closed_form`), as the rigid plant does. After a jump of the command
+    /// voltage the first trial step is sized from the error seen after the last jump (as
+    /// `model::Plant::advance`); error control itself is unchanged.
+    ///
+    /// The work of one call is bounded as in `model::Plant::advance`: at most `max_steps`
+    /// integrator steps over all segments and `max_events` stick/slip transitions; a state
+    /// that is not finite at the end is [`SimError::NonFinite`].
+    pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
+        self.advance_polled(inp, t0, t1, &mut || false)
+    }
+
+    /// [`Self::advance`] asking `poll` every `POLL_EVERY_STEPS` integrator steps whether to
+    /// stop (true: [`SimError::Interrupted`]).
+    pub fn advance_polled(
+        &mut self,
+        inp: &Inputs,
+        t0: f64,
+        t1: f64,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<(), SimError> {
+        hybrid::advance(self, inp, t0, t1, poll)
+    }
+}
+
+impl<const N: usize> HybridPlant for DrivePlant<N>
+where
+    Const<N>: DimMin<Const<N>, Output = Const<N>>,
+{
+    type Input = Inputs;
+
+    fn voltage(inp: &Inputs) -> f64 {
+        inp.u_v
+    }
+
+    fn last_voltage(&mut self) -> &mut f64 {
+        &mut self.u_last
+    }
+
+    fn options(&self) -> &IntegratorOptions {
+        &self.integrator.options
+    }
+
+    fn state(&self) -> &[f64] {
+        self.y.as_slice()
+    }
+
+    fn try_breakaway(&mut self, inp: &Inputs) {
+        let n = self.drive.n_state;
+        for j in 0..self.drive.n_mass {
+            if self.modes[j] == MassMode::Stuck {
+                let (f, cap) = self
+                    .drive
+                    .holding(&self.y.as_slice()[..n], inp, &self.modes, j);
+                if f.abs() > cap {
+                    self.modes[j] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
+                }
+            }
+        }
+    }
+
+    fn stuck_phase(&mut self, inp: &Inputs, t: f64, t1: f64) -> StuckPhase {
+        if !(self.drive.closed_form_stuck && self.modes[0] == MassMode::Stuck) {
+            return StuckPhase::Integrate;
+        }
+        match self.stuck_closed_form(inp, t, t1) {
+            None => StuckPhase::HeldToEnd,
+            Some(t_s) => StuckPhase::BreakawayAt(t_s),
+        }
+    }
+
+    fn start_slip(&mut self, inp: &Inputs) {
+        let (f, _) = self.drive.holding(
+            &self.y.as_slice()[..self.drive.n_state],
+            inp,
+            &self.modes,
+            0,
+        );
+        self.modes[0] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
+    }
+
+    fn integrate_segment(
+        &mut self,
+        inp: &Inputs,
+        t: f64,
+        t1: f64,
+        after_jump: Option<f64>,
+        steps: &mut usize,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<SegmentEnd, SimError> {
+        let seg = Segment {
+            drive: &self.drive,
+            inp: *inp,
+            modes: self.modes,
+        };
+        self.integrator.integrate_after_jump(
+            &seg,
+            t,
+            t1,
+            &mut self.y,
+            &self.atol,
+            after_jump,
+            &mut self.jump_error_rate,
+            steps,
+            poll,
+        )
+    }
+
+    fn resolve_event(&mut self, inp: &Inputs, force_stuck: bool) {
         let n = self.drive.n_state;
         let e = self
             .drive
@@ -1070,139 +1178,6 @@ where
                 self.modes[j] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
             }
         }
-    }
-
-    fn try_breakaway(&mut self, inp: &Inputs) {
-        let n = self.drive.n_state;
-        for j in 0..self.drive.n_mass {
-            if self.modes[j] == MassMode::Stuck {
-                let (f, cap) = self
-                    .drive
-                    .holding(&self.y.as_slice()[..n], inp, &self.modes, j);
-                if f.abs() > cap {
-                    self.modes[j] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
-                }
-            }
-        }
-    }
-
-    /// Advance from `t0` to `t1` with the inputs held, handling stick/slip events.
-    ///
-    /// A stuck phase of a one-mass chain without amplifier state is solved in closed form
-    /// (`stuck_closed_form`), as the rigid plant does. After a jump of the command
-    /// voltage the first trial step is sized from the error seen after the last jump (as
-    /// `model::Plant::advance`); error control itself is unchanged.
-    ///
-    /// The work of one call is bounded as in `model::Plant::advance`: at most `max_steps`
-    /// integrator steps over all segments and `max_events` stick/slip transitions; a state
-    /// that is not finite at the end is [`SimError::NonFinite`].
-    pub fn advance(&mut self, inp: &Inputs, t0: f64, t1: f64) -> Result<(), SimError> {
-        self.advance_polled(inp, t0, t1, &mut || false)
-    }
-
-    /// [`Self::advance`] asking `poll` every `POLL_EVERY_STEPS` integrator steps whether to
-    /// stop (true: [`SimError::Interrupted`]).
-    pub fn advance_polled(
-        &mut self,
-        inp: &Inputs,
-        t0: f64,
-        t1: f64,
-        poll: &mut dyn FnMut() -> bool,
-    ) -> Result<(), SimError> {
-        let jump = (inp.u_v - self.u_last).abs();
-        self.u_last = inp.u_v;
-        let mut at_jump = jump > 0.0;
-        let mut t = t0;
-        let mut events_here = 0usize;
-        let mut t_last_event = f64::NEG_INFINITY;
-        let mut steps = 0usize;
-        let mut events = 0usize;
-        loop {
-            if events_here < MAX_EVENTS_AT_ONE_INSTANT {
-                self.try_breakaway(inp);
-            }
-            if self.drive.closed_form_stuck && self.modes[0] == MassMode::Stuck {
-                match self.stuck_closed_form(inp, t, t1) {
-                    None => return self.check_finite(t1),
-                    Some(t_s) => {
-                        t = t_s;
-                        self.count_event(&mut events, t)?;
-                        let (f, _) = self.drive.holding(
-                            &self.y.as_slice()[..self.drive.n_state],
-                            inp,
-                            &self.modes,
-                            0,
-                        );
-                        self.modes[0] = MassMode::Slip(if f >= 0.0 { 1.0 } else { -1.0 });
-                        continue;
-                    }
-                }
-            }
-            let seg = Segment {
-                drive: &self.drive,
-                inp: *inp,
-                modes: self.modes,
-            };
-            let after_jump = (at_jump && t == t0).then_some(jump);
-            at_jump = false;
-            let end = self.integrator.integrate_after_jump(
-                &seg,
-                t,
-                t1,
-                &mut self.y,
-                &self.atol,
-                after_jump,
-                &mut self.jump_error_rate,
-                &mut steps,
-                poll,
-            )?;
-            match end {
-                SegmentEnd::Reached => return self.check_finite(t1),
-                SegmentEnd::Event { t_s } => {
-                    self.count_event(&mut events, t_s)?;
-                    if t_s - t_last_event <= self.integrator.options.event_tol_s {
-                        events_here += 1;
-                    } else {
-                        events_here = 0;
-                    }
-                    t_last_event = t_s;
-                    t = t_s;
-                    self.resolve(inp, events_here >= MAX_EVENTS_AT_ONE_INSTANT);
-                    self.check_finite(t)?;
-                }
-            }
-        }
-    }
-
-    /// Count one stick/slip transition at `t_s` against the `max_events` of the interval.
-    fn count_event(&self, events: &mut usize, t_s: f64) -> Result<(), SimError> {
-        *events += 1;
-        let max_events = self.integrator.options.max_events;
-        if *events > max_events {
-            return Err(SimError::TooManyEvents {
-                t_s,
-                max_events,
-                state: self.state_vec(),
-            });
-        }
-        Ok(())
-    }
-
-    /// [`SimError::NonFinite`] at `t_s` unless every state is finite.
-    fn check_finite(&self, t_s: f64) -> Result<(), SimError> {
-        if self.y.iter().all(|v| v.is_finite()) {
-            Ok(())
-        } else {
-            Err(SimError::NonFinite {
-                t_s,
-                state: self.state_vec(),
-            })
-        }
-    }
-
-    /// The state vector as the integrator's errors report it (padded to `N`).
-    fn state_vec(&self) -> Vec<f64> {
-        self.y.iter().copied().collect()
     }
 }
 

@@ -12,6 +12,7 @@
 //!   models and modifiers, drive-train links, drive electronics). With no effect switched on,
 //!   the closed loop uses the rigid plant (analytic Jacobian, exact stuck phases); the two
 //!   agree (tests/drive.rs).
+//! - `hybrid.rs`: the stick/slip event loop both plants run, with plant-specific hooks.
 //! - `response.rs`: a friction component driven along a prescribed motion.
 //!
 //! The equations are written out in `docs/model.md`.
@@ -19,6 +20,7 @@
 mod component;
 mod component_params;
 mod friction;
+mod hybrid;
 mod params;
 mod response;
 mod rigid;

@@ -1,7 +1,8 @@
 //! The rigid seed axis as a hybrid (stick/slip) ODE.
+use super::hybrid::{self, HybridPlant, StuckPhase};
 use super::params::AxisParams;
 use crate::error::{ConfigError, SimError};
-use crate::integrate::{OdeSystem, Rodas4, SegmentEnd};
+use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd};
 use nalgebra::{SMatrix, SVector};
 
 /// Dimension of the plant state.
@@ -384,9 +385,6 @@ pub struct Plant {
     jump_error_rate: Option<f64>,
 }
 
-/// Events at one instant beyond which the mode logic is considered chattering (Zeno guard).
-const MAX_EVENTS_AT_ONE_INSTANT: usize = 4;
-
 impl Plant {
     /// A plant at rest and stuck at x = 0, z = 0, i = 0.
     pub fn new(axis: Axis, integrator: Rodas4<STATE_DIM>) -> Self {
@@ -405,16 +403,6 @@ impl Plant {
     /// Motor current at the present state for a held voltage `u_v`.
     pub fn current(&self, u_v: f64) -> f64 {
         self.axis.current(&self.y, u_v)
-    }
-
-    /// Break away from stiction if the holding torque exceeds the static torque.
-    fn try_breakaway(&mut self, u_v: f64) {
-        if self.mode == Mode::Stuck {
-            let t_req = self.axis.holding_torque(&self.y, u_v);
-            if t_req.abs() > self.axis.params.motor_friction.static_torque_nm {
-                self.mode = Mode::Slip(t_req.signum());
-            }
-        }
     }
 
     /// While stuck, advance the motor current exactly over at most `dt` seconds:
@@ -487,110 +475,103 @@ impl Plant {
         t1: f64,
         poll: &mut dyn FnMut() -> bool,
     ) -> Result<(), SimError> {
-        let jump = (u_v - self.u_last).abs();
-        self.u_last = u_v;
-        let mut at_jump = jump > 0.0;
-        let mut t = t0;
-        let mut events_here = 0usize;
-        let mut t_last_event = f64::NEG_INFINITY;
-        let mut steps = 0usize;
-        let mut events = 0usize;
-        loop {
-            if events_here < MAX_EVENTS_AT_ONE_INSTANT {
-                self.try_breakaway(u_v);
-            }
-            if self.mode == Mode::Stuck {
-                // Nothing moves; the current is algebraic or a first-order lag solved exactly.
-                match self.stuck_current(u_v, t1 - t) {
-                    None => return self.check_finite(t1),
-                    Some(dt) => {
-                        t += dt;
-                        self.count_event(&mut events, t)?;
-                        let t_req = self.axis.holding_torque(&self.y, u_v);
-                        self.mode = Mode::Slip(t_req.signum());
-                        continue;
-                    }
-                }
-            }
-            let seg = Segment {
-                axis: &self.axis,
-                mode: self.mode,
-                u_v,
-            };
-            let after_jump = (at_jump && t == t0).then_some(jump);
-            at_jump = false;
-            let end = self.integrator.integrate_after_jump(
-                &seg,
-                t,
-                t1,
-                &mut self.y,
-                &self.atol,
-                after_jump,
-                &mut self.jump_error_rate,
-                &mut steps,
-                poll,
-            )?;
-            match end {
-                SegmentEnd::Reached => return self.check_finite(t1),
-                SegmentEnd::Event { t_s } => {
-                    self.count_event(&mut events, t_s)?;
-                    if t_s - t_last_event <= self.integrator.options.event_tol_s {
-                        events_here += 1;
-                    } else {
-                        events_here = 0;
-                    }
-                    t_last_event = t_s;
-                    t = t_s;
-                    match self.mode {
-                        Mode::Slip(d) => {
-                            self.y[V] = 0.0;
-                            let t_req = self.axis.holding_torque(&self.y, u_v);
-                            let ts = self.axis.params.motor_friction.static_torque_nm;
-                            self.mode =
-                                if t_req.abs() <= ts || events_here >= MAX_EVENTS_AT_ONE_INSTANT {
-                                    Mode::Stuck
-                                } else if t_req.signum() == d {
-                                    // Net torque still pushes along d although v reached 0
-                                    // (numerically at the event): continue along d.
-                                    Mode::Slip(d)
-                                } else {
-                                    Mode::Slip(-d)
-                                };
-                        }
-                        Mode::Stuck => {
-                            let t_req = self.axis.holding_torque(&self.y, u_v);
-                            self.mode = Mode::Slip(t_req.signum());
-                        }
-                    }
-                    self.check_finite(t)?;
-                }
+        hybrid::advance(self, &u_v, t0, t1, poll)
+    }
+}
+
+impl HybridPlant for Plant {
+    type Input = f64;
+
+    fn voltage(u_v: &f64) -> f64 {
+        *u_v
+    }
+
+    fn last_voltage(&mut self) -> &mut f64 {
+        &mut self.u_last
+    }
+
+    fn options(&self) -> &IntegratorOptions {
+        &self.integrator.options
+    }
+
+    fn state(&self) -> &[f64] {
+        self.y.as_slice()
+    }
+
+    /// Break away from stiction if the holding torque exceeds the static torque.
+    fn try_breakaway(&mut self, u_v: &f64) {
+        if self.mode == Mode::Stuck {
+            let t_req = self.axis.holding_torque(&self.y, *u_v);
+            if t_req.abs() > self.axis.params.motor_friction.static_torque_nm {
+                self.mode = Mode::Slip(t_req.signum());
             }
         }
     }
 
-    /// Count one stick/slip transition at `t_s` against the `max_events` of the interval.
-    fn count_event(&self, events: &mut usize, t_s: f64) -> Result<(), SimError> {
-        *events += 1;
-        let max_events = self.integrator.options.max_events;
-        if *events > max_events {
-            return Err(SimError::TooManyEvents {
-                t_s,
-                max_events,
-                state: self.y.iter().copied().collect(),
-            });
+    fn stuck_phase(&mut self, u_v: &f64, t: f64, t1: f64) -> StuckPhase {
+        if self.mode != Mode::Stuck {
+            return StuckPhase::Integrate;
         }
-        Ok(())
+        // Nothing moves; the current is algebraic or a first-order lag solved exactly.
+        match self.stuck_current(*u_v, t1 - t) {
+            None => StuckPhase::HeldToEnd,
+            Some(dt) => StuckPhase::BreakawayAt(t + dt),
+        }
     }
 
-    /// [`SimError::NonFinite`] at `t_s` unless every state is finite.
-    fn check_finite(&self, t_s: f64) -> Result<(), SimError> {
-        if self.y.iter().all(|v| v.is_finite()) {
-            Ok(())
-        } else {
-            Err(SimError::NonFinite {
-                t_s,
-                state: self.y.iter().copied().collect(),
-            })
+    fn start_slip(&mut self, u_v: &f64) {
+        let t_req = self.axis.holding_torque(&self.y, *u_v);
+        self.mode = Mode::Slip(t_req.signum());
+    }
+
+    fn integrate_segment(
+        &mut self,
+        u_v: &f64,
+        t: f64,
+        t1: f64,
+        after_jump: Option<f64>,
+        steps: &mut usize,
+        poll: &mut dyn FnMut() -> bool,
+    ) -> Result<SegmentEnd, SimError> {
+        let seg = Segment {
+            axis: &self.axis,
+            mode: self.mode,
+            u_v: *u_v,
+        };
+        self.integrator.integrate_after_jump(
+            &seg,
+            t,
+            t1,
+            &mut self.y,
+            &self.atol,
+            after_jump,
+            &mut self.jump_error_rate,
+            steps,
+            poll,
+        )
+    }
+
+    fn resolve_event(&mut self, u_v: &f64, force_stuck: bool) {
+        let u_v = *u_v;
+        match self.mode {
+            Mode::Slip(d) => {
+                self.y[V] = 0.0;
+                let t_req = self.axis.holding_torque(&self.y, u_v);
+                let ts = self.axis.params.motor_friction.static_torque_nm;
+                self.mode = if t_req.abs() <= ts || force_stuck {
+                    Mode::Stuck
+                } else if t_req.signum() == d {
+                    // Net torque still pushes along d although v reached 0
+                    // (numerically at the event): continue along d.
+                    Mode::Slip(d)
+                } else {
+                    Mode::Slip(-d)
+                };
+            }
+            Mode::Stuck => {
+                let t_req = self.axis.holding_torque(&self.y, u_v);
+                self.mode = Mode::Slip(t_req.signum());
+            }
         }
     }
 }
