@@ -330,8 +330,22 @@ impl LuGre {
     }
 }
 
+impl TableFriction {
+    /// Validate the parameters of the model (none: nothing to check).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        match self {
+            Self::None => Ok(()),
+            Self::Static(m) => m.validate(),
+            Self::Dahl(d) => d.validate(),
+            Self::LuGre(l) => l.validate(),
+            Self::Gms(g) => g.validate(),
+        }
+    }
+}
+
 impl Modulation {
-    fn validate(&self) -> Result<(), ConfigError> {
+    /// Validate the terms.
+    pub fn validate(&self) -> Result<(), ConfigError> {
         if self.n_terms > MAX_MODULATION_TERMS {
             return Err(ConfigError::new(
                 "n_terms",
@@ -455,13 +469,9 @@ impl DriveParams {
         if let Some(m) = &self.motor_friction {
             m.validate().map_err(|e| e.within("motor_friction"))?;
         }
-        match &self.table_friction {
-            TableFriction::None => {}
-            TableFriction::Static(m) => m.validate().map_err(|e| e.within("table_friction"))?,
-            TableFriction::Dahl(d) => d.validate().map_err(|e| e.within("table_friction"))?,
-            TableFriction::LuGre(l) => l.validate().map_err(|e| e.within("table_friction"))?,
-            TableFriction::Gms(g) => g.validate().map_err(|e| e.within("table_friction"))?,
-        }
+        self.table_friction
+            .validate()
+            .map_err(|e| e.within("table_friction"))?;
         check_range("table_mass_kg", self.table_mass_kg, MIN_MASS_KG, 1e4)?;
         check_range("external_force_n", self.external_force_n, -1e4, 1e4)?;
         if self.n_links > 2 {

@@ -136,10 +136,12 @@ pub fn friction_response_polled(
         )
         .into());
     }
-    let mut probe = crate::model::DriveParams::from_axis(&crate::presets::seed_axis());
-    probe.table_friction = *friction;
-    probe.table_modulation = *modulation;
-    probe.validate().map_err(|e| e.within("friction"))?;
+    friction
+        .validate()
+        .map_err(|e| e.within("table_friction").within("friction"))?;
+    modulation
+        .validate()
+        .map_err(|e| e.within("table_modulation").within("friction"))?;
     let mut integ = Rodas4::<N>::new(*options).map_err(|e| e.within("integrator"))?;
     let lag_s = match friction {
         TableFriction::Static(m) => m.memory_lag_s,
