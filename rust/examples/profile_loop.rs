@@ -1,4 +1,4 @@
-//! Work profile of the rigid seed closed loop (issue 2 speed work).
+//! Work profile of the rigid seed closed loop.
 //!
 //! `cargo run --release --no-default-features --example profile_loop -- step` runs the 1 s,
 //! 1 mm step; `... -- iso FILE` runs one campaign trial of the ISO standard cycle whose

@@ -108,8 +108,8 @@ pub struct Table {
 pub struct DahlFriction {
     /// Coulomb force Fc, N, in [1e-6, 1e5]. The lower bound, a micronewton (the weight of
     /// 0.1 mg), is below the friction of any sliding or rolling guide; far below it the
-    /// Dahl law's `1 − F/Fc` cannot be resolved (1e-30 N: the slip direction changes at
-    /// picosecond intervals, which used to hang a run).
+    /// Dahl law's `1 − F/Fc` cannot be resolved (1e-30 N: the slip direction would change
+    /// at picosecond intervals and the run would not end).
     pub coulomb_force_n: f64,
     /// Rest stiffness σ (slope of force vs displacement at F = 0), N/m, in [1e-3, 1e12]. The
     /// lower bound, 1 mN/m, is decades below any contact stiffness (a 1 N friction force
