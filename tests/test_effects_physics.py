@@ -4,7 +4,7 @@ fact of one component that would fail if its equations were wrong, not just that
 Friction components are driven along prescribed motions (``friction_response``, states start
 relaxed); drive-train, sensor and timing effects run the component plant open loop
 (``simulate_open_loop``) or the closed loop (``simulate``). Expected values are derived in
-the docstrings from the model equations (``rust/src/drive``, DOMAIN.md §3–4).
+the docstrings from the model equations (``rust/src/model/component.rs``, DOMAIN.md §3–4).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from nanostage.simulate import simulate, simulate_open_loop
 FC = 30.4
 FS = 36.0
 SIGMA = 7.5e7
-GMS_BETA = 0.9  # elastic fraction of a GMS element (rust/src/drive/model.rs)
+GMS_BETA = 0.9  # elastic fraction of a GMS element (rust/src/model/friction.rs)
 
 DAHL = DahlFriction(coulomb_force_n=FC, stiffness_n_per_m=SIGMA)
 LUGRE = LuGre(

@@ -2,7 +2,8 @@
 dataclass with physical parameters (SI units in the names). All are off by default; a
 :class:`Effects` collects the ones switched on and is part of :class:`nanostage.System`.
 
-Valid ranges are enforced by the Rust core (``rust/src/drive``) when the system is built.
+Valid ranges are enforced by the Rust core (``rust/src/model/component.rs``) when the system
+is built.
 The equations are in ``docs/effects.md``; the stable names are in
 :data:`EFFECT_NAMES` (the diagnosis refers to effects by these names; they never change
 meaning).

@@ -1,5 +1,5 @@
 """Friction components on their own: the force a friction model produces along a prescribed
-(measured) motion. The integration runs in the Rust core (``rust/src/drive/response.rs``).
+(measured) motion. The integration runs in the Rust core (``rust/src/model/response.rs``).
 """
 
 from __future__ import annotations

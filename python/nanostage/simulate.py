@@ -427,7 +427,7 @@ def simulate_open_loop(
     """Drive the plant of ``system`` with all its effects, without the controller:
     ``voltage_v[k]`` (motor voltage, or drive command of a force drive) and ``force_n[k]``
     (on the table, +x) held on ``[k·T, (k+1)·T)``; starts at rest. Always runs the component
-    plant (``rust/src/drive``)."""
+    plant (``rust/src/model/component.rs``)."""
     u = np.ascontiguousarray(voltage_v, dtype=np.float64)
     if u.ndim != 1:
         raise _core.ConfigError(
