@@ -70,7 +70,6 @@ Checks (each raises :class:`TraceError`)
 
 from __future__ import annotations
 
-import codecs
 import csv
 import dataclasses
 import math
@@ -86,6 +85,7 @@ import numpy.typing as npt
 
 from .._core import ConfigError
 from ..config import did_you_mean
+from ..csvfile import find_utf8_error, open_csv, read_header, skip_row, too_wide
 from ..experiment import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, Experiment
 
 __all__ = [
@@ -474,10 +474,6 @@ def _select(
     return {s: names[s] for s in schema.columns if names[s] in have}
 
 
-def _skip_row(row: Sequence[str]) -> bool:
-    return not any(c.strip() for c in row) or row[0].lstrip().startswith("#")
-
-
 def _limit_error(file: str, what: str, limit: int, unit: str, field: str) -> TraceError:
     return TraceError(
         f"{what}, above the limit of {limit} {unit} per trace; split the file, or "
@@ -514,36 +510,15 @@ def _estimate_rows(path: Path, size: int) -> int | None:
     return int(size * newlines / seen)
 
 
-def _first_invalid_utf8(path: Path) -> tuple[int, int]:
-    """Byte offset (0-based) and line (1-based) of the first byte that is not UTF-8."""
-    dec = codecs.getincrementaldecoder("utf-8")()
-    offset = 0
-    line = 1
-    with path.open("rb") as fh:
-        while block := fh.read(1 << 20):
-            pending = dec.getstate()[0]
-            try:
-                dec.decode(block)
-            except UnicodeDecodeError as exc:
-                data = pending + block
-                return offset - len(pending) + exc.start, line + data[: exc.start].count(b"\n")
-            line += block.count(b"\n")
-            offset += len(block)
-        pending = dec.getstate()[0]
-        try:
-            dec.decode(b"", final=True)
-        except UnicodeDecodeError as exc:
-            return offset - len(pending) + exc.start, line
-    return offset, line  # pragma: no cover - only called after a decode error
-
-
 def _utf8_error(path: Path, file: str) -> TraceError:
-    offset, line = _first_invalid_utf8(path)
+    bad = find_utf8_error(path)
+    if bad is None:  # pragma: no cover - only called after a decode error
+        raise AssertionError(f"{file}: a UTF-8 decode error but no undecodable byte")
     return TraceError(
-        f"not UTF-8 text: the byte at offset {offset} cannot be decoded; save the file as "
+        f"not UTF-8 text: the byte at offset {bad.offset} cannot be decoded; save the file as "
         "UTF-8 (plain ASCII numbers are UTF-8)",
         file=file,
-        line=line,
+        line=bad.line,
     )
 
 
@@ -591,15 +566,9 @@ def _read_csv(
         )
     reader: Any = None
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
+        with open_csv(path) as fh:
             reader = csv.reader(fh)
-            header: list[str] | None = None
-            header_line = 1
-            for row in reader:
-                if not _skip_row(row):
-                    header = [c.strip() for c in row]
-                    header_line = reader.line_num
-                    break
+            header, header_line = read_header(reader)
             if header is None:
                 raise TraceError(
                     "no header row; expected a first row naming the columns "
@@ -624,9 +593,9 @@ def _read_csv(
             lines: list[int] = []
             n = 0
             for row in reader:
-                if _skip_row(row):
+                if skip_row(row):
                     continue
-                if len(row) > width and any(c.strip() for c in row[width:]):
+                if too_wide(row, width):
                     raise TraceError(
                         f"row has {len(row)} fields but the header has {width}",
                         file=file,

@@ -3,7 +3,6 @@ every error, the millimetre heuristic) and writing."""
 
 from __future__ import annotations
 
-import codecs
 import csv
 import math
 from collections.abc import Callable, Sequence
@@ -13,6 +12,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ..csvfile import find_utf8_error, open_csv, read_header, skip_row, too_wide
 from .evaluation import (
     LENGTH_UNITS,
     MM_HEURISTIC_INTERVAL_M,
@@ -51,43 +51,9 @@ def _check_target_spacing(
         )
 
 
-class _Utf8Error(Exception):
-    """Where a file stops being UTF-8: 0-based byte offset, 1-based line, the byte."""
-
-    def __init__(self, offset: int, line: int, byte: int, reason: str) -> None:
-        super().__init__(offset, line, byte, reason)
-        self.offset, self.line, self.byte, self.reason = offset, line, byte, reason
-
-
-def _find_utf8_error(path: Path, chunk_bytes: int = 1 << 20) -> _Utf8Error | None:
-    """The first byte of ``path`` that is not UTF-8, read in chunks (no whole-file copy)."""
-    decoder = codecs.getincrementaldecoder("utf-8")()
-    pos = 0
-    lines = 0
-    with path.open("rb") as fh:
-        while True:
-            chunk = fh.read(chunk_bytes)
-            pending = decoder.getstate()[0]
-            try:
-                decoder.decode(chunk, final=not chunk)
-            except UnicodeDecodeError as exc:
-                data = pending + chunk
-                offset = pos - len(pending) + exc.start
-                line = lines + data[: exc.start].count(b"\n") + 1
-                return _Utf8Error(offset, line, data[exc.start], exc.reason)
-            if not chunk:
-                return None
-            pos += len(chunk)
-            lines += chunk.count(b"\n")
-
-
 # --------------------------------------------------------------------------------------------
 # CSV input/output
 # --------------------------------------------------------------------------------------------
-
-
-def _skip_row(row: Sequence[str]) -> bool:
-    return not any(c.strip() for c in row) or row[0].lstrip().startswith("#")
 
 
 def read_measurement_csv(
@@ -164,7 +130,7 @@ def read_measurement_csv(
     try:
         return _read_measurement_csv(Path(path), src, check_units, float(target_tolerance_m), units)
     except UnicodeDecodeError:
-        bad = _find_utf8_error(Path(path))
+        bad = find_utf8_error(Path(path))
         if bad is None:  # pragma: no cover - the decoder failed, so the scan finds it
             raise
         raise Iso230InputError(
@@ -183,15 +149,9 @@ def _read_measurement_csv(
     runs: list[int] = []
     actuals: list[float] = []
     lines: list[int] = []
-    with path.open(newline="", encoding="utf-8-sig") as fh:
+    with open_csv(path) as fh:
         reader = csv.reader(fh)
-        header: list[str] | None = None
-        header_line = 1
-        for row in reader:
-            if not _skip_row(row):
-                header = [c.strip() for c in row]
-                header_line = reader.line_num
-                break
+        header, header_line = read_header(reader)
         if header is None:
             raise Iso230InputError(
                 "no header row; expected columns " + ", ".join(REQUIRED_COLUMNS),
@@ -240,14 +200,14 @@ def _read_measurement_csv(
         length_cols = (names["target_m"], names["actual_m"])
 
         for row in reader:
-            if _skip_row(row):
+            if skip_row(row):
                 continue
             ln = reader.line_num
 
             def fail(column: str, message: str, ln: int = ln) -> Iso230InputError:
                 return Iso230InputError(message, source=src, line=ln, column=column)
 
-            if len(row) > len(header) and any(c.strip() for c in row[len(header) :]):
+            if too_wide(row, len(header)):
                 raise Iso230InputError(
                     f"row has {len(row)} fields but the header has {len(header)}",
                     source=src,
