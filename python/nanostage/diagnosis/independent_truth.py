@@ -1,0 +1,708 @@
+"""A second truth family for the gap diagnosis, written independently of nanostage's models.
+
+The seed axis is simulated here from the documents alone (docs/model.md, docs/controller.md),
+with numpy and scipy only: nothing of nanostage's plant, friction, effect, simulation,
+configuration or Rust core is imported (``nanostage.output`` writes the JSON file). What
+differs from nanostage's own truth and candidates:
+
+* **Integration.** scipy's ``solve_ivp`` (Radau, rtol 1e-9) over each control interval with
+  the voltage held, split at the output update (latency) like the FPGA; no stick/slip mode
+  switching: both friction laws are smooth state models.
+* **Motor friction** is a LuGre bristle model (nanostage: a Stribeck map with true stiction),
+  its damping fading with speed; **table friction** is an elasto-plastic law (Dupont et al.
+  2002: a purely elastic region below a breakaway deflection, then a smooth transition to
+  sliding; nanostage: Dahl).
+* **Controller**: the fixed-point PID on integer encoder counts, re-implemented from
+  docs/controller.md with Python integers (the seed formats copied as numbers).
+* **Sensor**: encoder counts of the table position plus Gaussian noise before quantisation.
+* **Nominal parameters** drawn off the seed preset (friction levels ±30 %, presliding
+  stiffness ±30 %, table mass ±20 %, motor constants and inertia ±10–20 %) and a per-run
+  friction level factor (lognormal), in every case, "none" included.
+* **Hidden effects** from their physics (:data:`HIDDEN_EFFECTS`): backlash as a dead-band
+  spring-damper contact that can only push, amplifier dynamics as a first-order voltage lag,
+  drive compliance as a two-mass chain (rotor and screw | table), an offset force,
+  asymmetric friction (direction-dependent levels on both the motor and the table laws),
+  dwell-dependent breakaway in Armstrong's form (the LuGre static level rises with the time
+  at rest, counted per control interval), and position-dependent table friction from
+  random harmonics with a fine-pitch roughness term.
+
+:func:`write_case` writes a case folder like ``nanostage diagnose-benchmark``'s (a manifest,
+CSV traces with ``command_v``, a ``truth.json`` naming the hidden effect and its
+parameters), which ``nanostage diagnose`` reads.
+
+Seed-preset numbers copied below come from ``nanostage.presets.seed`` (the Rust core's
+``seed_values``, provenance in ``nanostage.presets.SEED_PROVENANCE``) and the Table 1 gains
+from ``nanostage.presets.table1_gains``.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+from collections.abc import Sequence
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.integrate import solve_ivp
+
+from ..output import write_json
+
+__all__ = [
+    "HIDDEN_EFFECTS",
+    "NOT_YET_WRITTEN",
+    "SEED",
+    "DesignedExperiment",
+    "FixedPointPid",
+    "Truth",
+    "draw_truth",
+    "experiment_design",
+    "simulate_closed_loop",
+    "simulate_open_loop",
+    "write_case",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Seed preset values (nanostage.presets.seed; SI units).
+SEED: Final[dict[str, float]] = {
+    "resistance_ohm": 3.4,
+    "inductance_h": 7e-5,
+    "torque_constant_nm_per_a": 6.6e-3,
+    "back_emf_v_s_per_rad": 6.6e-3,
+    "rotor_inertia_kg_m2": 1e-7,
+    "static_torque_nm": 1.2e-4,
+    "coulomb_torque_nm": 1e-4,
+    "viscous_nm_s_per_rad": 2e-8,
+    "stribeck_velocity_rad_per_s": 10.0,
+    "gear_ratio": 19.0,
+    "gear_efficiency": 0.8,
+    "lead_m": 2e-3,
+    "screw_efficiency": 0.9,
+    "screw_inertia_kg_m2": 1e-7,
+    "mass_kg": 0.5,
+    "table_coulomb_force_n": 30.4,
+    "table_stiffness_n_per_m": 7.5e7,
+    "count_m": 1e-7,
+    "amplifier_limit_v": 6.0,
+    "sample_period_s": 1e-3,
+    "latency_s": 130 / 40e6,
+}
+
+#: Table 1 gains (kp, ki, kd) per step size (nanostage.presets.table1_gains).
+TABLE1_GAINS: Final[dict[float, tuple[float, float, float]]] = {
+    100e-6: (450.0, 2.0, 40.0),
+    500e-6: (450.0, 2.0, 40.0),
+    1e-3: (450.0, 5.0, 10.0),
+    10e-3: (450.0, 5.0, 25.0),
+}
+
+#: Hidden effects this family writes ("none": only the nominal mismatch).
+HIDDEN_EFFECTS: Final[tuple[str, ...]] = (
+    "none",
+    "backlash",
+    "amplifier_dynamics",
+    "drive_compliance",
+    "offset_force",
+    "asymmetric_friction",
+    "dwell_static_friction",
+    "position_random_friction",
+)
+
+#: Effects of issue 25's list not written in this family.
+NOT_YET_WRITTEN: Final[tuple[str, ...]] = (
+    "computation_delay",
+    "presliding_gms",
+    "lugre",
+    "lead_periodic_friction",
+    "frictional_memory",
+)
+
+#: Which diagnosed names count as finding each hidden effect.
+ACCEPT: Final[dict[str, frozenset[str]]] = {
+    "position_random_friction": frozenset({"position_random_friction", "lead_periodic_friction"}),
+}
+
+# State indices.
+_X, _V, _TH, _W, _I, _ZM, _ZT, _UA = range(8)
+_N_STATES = 8
+
+
+@dc.dataclass(frozen=True)
+class Truth:
+    """One drawn truth: nominal parameters, the hidden effect and its parameters."""
+
+    hidden: str
+    p: dict[str, float]
+    effect: dict[str, Any]
+    seed: int
+
+    @property
+    def r(self) -> float:
+        """Transmission, m of table per rad of motor."""
+        return self.p["lead_m"] / (2.0 * math.pi * self.p["gear_ratio"])
+
+    @property
+    def eta(self) -> float:
+        return self.p["gear_efficiency"] * self.p["screw_efficiency"]
+
+    @property
+    def rotor_side_inertia(self) -> float:
+        """Rotating inertia at the motor shaft (rotor plus screw seen through the gear)."""
+        return self.p["rotor_inertia_kg_m2"] + self.p["screw_inertia_kg_m2"] / (
+            self.p["gear_ratio"] ** 2
+        )
+
+    @property
+    def rigid(self) -> bool:
+        return self.hidden not in ("backlash", "drive_compliance")
+
+
+# --------------------------------------------------------------------------- drawing
+
+
+def draw_truth(hidden: str, seed: int) -> Truth:
+    """Nominal parameters off the seed preset and the hidden effect's parameters."""
+    if hidden not in HIDDEN_EFFECTS:
+        raise ValueError(f"unknown hidden effect {hidden!r}; valid: {', '.join(HIDDEN_EFFECTS)}")
+    rng = np.random.default_rng(seed)
+
+    def u(lo: float, hi: float) -> float:
+        return float(rng.uniform(lo, hi))
+
+    p = dict(SEED)
+    p["coulomb_torque_nm"] *= u(0.7, 1.3)
+    p["static_torque_nm"] = p["coulomb_torque_nm"] * u(1.1, 1.5)
+    p["viscous_nm_s_per_rad"] *= u(0.7, 1.3)
+    p["stribeck_velocity_rad_per_s"] *= u(0.5, 2.0)
+    p["table_coulomb_force_n"] *= u(0.7, 1.3)
+    p["table_stiffness_n_per_m"] *= u(0.7, 1.3)
+    p["mass_kg"] *= u(0.8, 1.2)
+    k = u(0.9, 1.1)
+    p["torque_constant_nm_per_a"] *= k
+    p["back_emf_v_s_per_rad"] *= k
+    p["resistance_ohm"] *= u(0.9, 1.1)
+    p["rotor_inertia_kg_m2"] *= u(0.8, 1.2)
+    # LuGre bristles: the static torque is reached at a deflection of 0.5-2 mrad (8-34 nm
+    # at the table); damping ratio 0.2-0.5 of the bristle mode with the whole axis.
+    p["bristle_deflection_rad"] = u(0.5e-3, 2e-3)
+    p["bristle_damping_ratio"] = u(0.2, 0.5)
+    # Elasto-plastic table law: elastic up to 40-80 % of the sliding deflection.
+    p["table_breakaway_ratio"] = u(0.4, 0.8)
+    p["table_damping_ratio"] = u(0.05, 0.2)
+    # Per-run friction level factor (lognormal, 3 %), and sensor noise.
+    p["friction_run_spread"] = 0.03
+    p["encoder_noise_m"] = u(3e-9, 8e-9)
+
+    eff: dict[str, Any] = {}
+    if hidden == "backlash":
+        eff = {
+            "width_m": u(5e-6, 30e-6),
+            "contact_stiffness_n_per_m": u(1e7, 5e7),
+            "contact_damping_n_s_per_m": u(200.0, 2000.0),
+        }
+    elif hidden == "amplifier_dynamics":
+        eff = {"time_constant_s": u(0.1e-3, 0.5e-3)}
+    elif hidden == "drive_compliance":
+        eff = {
+            "stiffness_n_per_m": u(1e7, 5e7),
+            "damping_n_s_per_m": u(100.0, 1000.0),
+        }
+    elif hidden == "offset_force":
+        eff = {"force_n": u(3.0, 10.0) * float(rng.choice([-1.0, 1.0]))}
+    elif hidden == "asymmetric_friction":
+        eff = {"asymmetry": u(0.15, 0.4) * float(rng.choice([-1.0, 1.0]))}
+    elif hidden == "dwell_static_friction":
+        eff = {"rise": u(1.5, 4.0), "time_constant_s": u(0.05, 0.5)}
+    elif hidden == "position_random_friction":
+        n = int(rng.integers(3, 7))
+        wl = rng.uniform(0.3e-3, 5e-3, n)
+        amp = rng.rayleigh(1.0, n)
+        amp *= u(0.1, 0.25) / math.sqrt(0.5 * float(np.sum(amp**2)))
+        # Fine-pitch roughness: many small harmonics of 20-100 µm wavelength.
+        m = 20
+        rough_wl = rng.uniform(20e-6, 100e-6, m)
+        rough_amp = np.full(m, 0.02 / math.sqrt(0.5 * m))
+        eff = {
+            "wavelengths_m": [float(a) for a in np.concatenate([wl, rough_wl])],
+            "amplitudes": [float(a) for a in np.concatenate([amp, rough_amp])],
+            "phases_rad": [float(a) for a in rng.uniform(-math.pi, math.pi, n + m)],
+        }
+    return Truth(hidden=hidden, p=p, effect=eff, seed=seed)
+
+
+# --------------------------------------------------------------------------- the plant
+
+
+@dc.dataclass
+class _Run:
+    """Per-run values: the truth, the friction level factor and the dwell state."""
+
+    truth: Truth
+    level: float
+    dwell_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        t = self.truth
+        p = t.p
+        self.r = t.r
+        self.eta = t.eta
+        self.j1 = t.rotor_side_inertia
+        self.m_eq = p["mass_kg"] + self.eta * self.j1 / self.r**2
+        self.sigma0_m = p["static_torque_nm"] / p["bristle_deflection_rad"]
+        j_tot = self.m_eq * self.r**2 / self.eta
+        self.sigma1_m = 2.0 * p["bristle_damping_ratio"] * math.sqrt(self.sigma0_m * j_tot)
+        self.sigma0_t = p["table_stiffness_n_per_m"]
+        self.sigma1_t = 2.0 * p["table_damping_ratio"] * math.sqrt(self.sigma0_t * self.m_eq)
+        self.asym = (
+            float(t.effect.get("asymmetry", 0.0)) if t.hidden == "asymmetric_friction" else 0.0
+        )
+        if t.hidden == "position_random_friction":
+            self.mod_k = 2.0 * math.pi / np.asarray(t.effect["wavelengths_m"])
+            self.mod_a = np.asarray(t.effect["amplitudes"])
+            self.mod_ph = np.asarray(t.effect["phases_rad"])
+
+    def motor_levels(self, w: float) -> tuple[float, float]:
+        """(static, Coulomb) torque of the LuGre law for the direction of ``w``."""
+        p = self.truth.p
+        f = self.level * (1.0 + self.asym * (1.0 if w >= 0.0 else -1.0))
+        ts = p["static_torque_nm"]
+        if self.truth.hidden == "dwell_static_friction":
+            e = self.truth.effect
+            ts += e["rise"] * ts * self.dwell_s / (self.dwell_s + e["time_constant_s"])
+        return f * ts, f * p["coulomb_torque_nm"]
+
+    def table_level(self, x: float, v: float) -> float:
+        """Sliding friction force of the table law at position ``x``, direction of ``v``."""
+        f = self.level * (1.0 + self.asym * (1.0 if v >= 0.0 else -1.0))
+        if self.truth.hidden == "position_random_friction":
+            f *= 1.0 + float(np.sum(self.mod_a * np.cos(self.mod_k * x + self.mod_ph)))
+        return f * self.truth.p["table_coulomb_force_n"]
+
+    def lugre(self, w: float, z: float) -> tuple[float, float]:
+        """Motor friction torque and the bristle rate."""
+        ts, tc = self.motor_levels(w)
+        ws = self.truth.p["stribeck_velocity_rad_per_s"]
+        s = math.exp(-((w / ws) ** 2))
+        g = tc + (ts - tc) * s
+        dz = w - self.sigma0_m * abs(w) * z / g
+        torque = (
+            self.sigma0_m * z + self.sigma1_m * s * dz + self.truth.p["viscous_nm_s_per_rad"] * w
+        )
+        return torque, dz
+
+    def elasto_plastic(self, x: float, v: float, z: float) -> tuple[float, float]:
+        """Table friction force and the deflection rate (Dupont's elasto-plastic law)."""
+        z_ss = self.table_level(x, v) / self.sigma0_t
+        z_ba = self.truth.p["table_breakaway_ratio"] * z_ss
+        a = 0.0
+        if v * z > 0.0:
+            az = abs(z)
+            if az >= z_ss:
+                a = 1.0
+            elif az > z_ba:
+                a = 0.5 + 0.5 * math.sin(math.pi * (az - 0.5 * (z_ss + z_ba)) / (z_ss - z_ba))
+        dz = v * (1.0 - a * abs(z) / z_ss)
+        return self.sigma0_t * z + self.sigma1_t * dz, dz
+
+    def link_force(self, y: FloatArray) -> float:
+        """Force of the drive train on the table (two-mass chains)."""
+        e = self.truth.effect
+        d = self.r * y[_TH] - y[_X]
+        dd = self.r * y[_W] - y[_V]
+        if self.truth.hidden == "drive_compliance":
+            return float(e["stiffness_n_per_m"] * d + e["damping_n_s_per_m"] * dd)
+        half = 0.5 * e["width_m"]
+        if abs(d) <= half:
+            return 0.0
+        pen = d - math.copysign(half, d)
+        f = e["contact_stiffness_n_per_m"] * pen + e["contact_damping_n_s_per_m"] * dd
+        # A contact can only push.
+        return float(f) if f * pen > 0.0 else 0.0
+
+    def rhs(self, u_cmd: float, y: FloatArray) -> FloatArray:
+        t = self.truth
+        p = t.p
+        dy = np.zeros(_N_STATES)
+        if t.hidden == "amplifier_dynamics":
+            u = y[_UA]
+            dy[_UA] = (u_cmd - u) / t.effect["time_constant_s"]
+        else:
+            u = u_cmd
+        w = y[_W] if not t.rigid else y[_V] / self.r
+        kt = p["torque_constant_nm_per_a"]
+        dy[_I] = (u - p["resistance_ohm"] * y[_I] - p["back_emf_v_s_per_rad"] * w) / p[
+            "inductance_h"
+        ]
+        tm, dy[_ZM] = self.lugre(w, y[_ZM])
+        ft, dy[_ZT] = self.elasto_plastic(y[_X], y[_V], y[_ZT])
+        f_off = float(t.effect["force_n"]) if t.hidden == "offset_force" else 0.0
+        dy[_X] = y[_V]
+        if t.rigid:
+            acc = (self.eta / self.r * (kt * y[_I] - tm) - ft - f_off) / self.m_eq
+            dy[_V] = acc
+            dy[_TH] = y[_V] / self.r
+            dy[_W] = acc / self.r
+        else:
+            fl = self.link_force(y)
+            dy[_V] = (fl - ft - f_off) / p["mass_kg"]
+            dy[_TH] = y[_W]
+            dy[_W] = (kt * y[_I] - tm - self.r * fl / self.eta) / self.j1
+        return dy
+
+    def atol(self) -> FloatArray:
+        a = np.empty(_N_STATES)
+        a[_X], a[_V] = 1e-13, 1e-10
+        a[_TH], a[_W] = 1e-13 / self.r, 1e-10 / self.r
+        a[_I] = 1e-8
+        a[_ZM] = 1e-13 / self.r
+        a[_ZT] = 1e-13
+        a[_UA] = 1e-8
+        return a
+
+    def advance(self, y: FloatArray, u_cmd: float, dt: float) -> FloatArray:
+        sol = solve_ivp(
+            lambda _t, s: self.rhs(u_cmd, s),
+            (0.0, dt),
+            y,
+            method="Radau",
+            rtol=1e-9,
+            atol=self.atol(),
+            first_step=min(dt, 1e-6),
+        )
+        if not sol.success:
+            raise RuntimeError(f"integration failed: {sol.message}")
+        out: FloatArray = np.asarray(sol.y[:, -1], dtype=np.float64)
+        return out
+
+
+def _initial_state(run: _Run, x0: float, rng: np.random.Generator) -> FloatArray:
+    y = np.zeros(_N_STATES)
+    y[_X] = x0
+    d0 = 0.0
+    if run.truth.hidden == "backlash":
+        # Resting against one flank (the side of the last move).
+        d0 = 0.5 * run.truth.effect["width_m"] * float(rng.choice([-1.0, 1.0]))
+    y[_TH] = (x0 + d0) / run.r
+    return y
+
+
+# --------------------------------------------------------------------------- the controller
+
+#: (signed, word_bits, int_bits, rounding, overflow) of the seed FPGA loop.
+Fmt = tuple[bool, int, int, str, str]
+SEED_FORMATS: Final[dict[str, Fmt]] = {
+    "gain": (True, 24, 16, "half_even", "saturate"),
+    "measurement": (True, 32, 32, "half_even", "wrap"),
+    "error": (True, 32, 32, "half_even", "saturate"),
+    "term": (True, 48, 40, "half_even", "saturate"),
+    "integrator": (True, 48, 40, "half_even", "saturate"),
+    "output": (True, 32, 24, "half_even", "saturate"),
+    "dac": (True, 16, 16, "half_even", "saturate"),
+    "dac_scale": (False, 16, 0, "half_even", "saturate"),
+}
+OUTPUT_UNIT_V: Final = 1e-4
+DAC_LSB_V: Final = 20.0 / 65536
+OUTPUT_LIMIT: Final = 60000.0
+
+
+def _requant(raw: int, f_in: int, fmt: Fmt) -> int:
+    """``raw * 2**-f_in`` in ``fmt`` (round, then handle overflow)."""
+    signed, word, ib, rounding, overflow = fmt
+    f = word - ib
+    if f >= f_in:
+        out = raw << (f - f_in)
+    else:
+        s = f_in - f
+        q = raw >> s
+        rem = raw - (q << s)
+        half = 1 << (s - 1)
+        if rounding == "truncate":
+            out = q
+        elif rounding == "half_up":
+            out = q + (rem >= half)
+        else:
+            out = q + (rem > half or (rem == half and q & 1 == 1))
+    lo, hi = (-(1 << (word - 1)), (1 << (word - 1)) - 1) if signed else (0, (1 << word) - 1)
+    if lo <= out <= hi:
+        return out
+    if overflow == "saturate":
+        return lo if out < lo else hi
+    out &= (1 << word) - 1
+    if signed and out > hi:
+        out -= 1 << word
+    return out
+
+
+def _frac(fmt: Fmt) -> int:
+    return fmt[1] - fmt[2]
+
+
+def _host_quantise(value: float, fmt: Fmt) -> int:
+    """A host constant in ``fmt``: nearest raw value, ties to even."""
+    return round(Fraction(value) * Fraction(2) ** _frac(fmt))
+
+
+class FixedPointPid:
+    """The FPGA PID (docs/controller.md) on integer counts, conditional anti-windup."""
+
+    def __init__(self, kp: float, ki: float, kd: float, formats: dict[str, Fmt] | None = None):
+        self.f = dict(formats or SEED_FORMATS)
+        g = self.f["gain"]
+        self.kp, self.ki, self.kd = (_host_quantise(k, g) for k in (kp, ki, kd))
+        self.out_max = _host_quantise(OUTPUT_LIMIT, self.f["output"])
+        self.out_min = _host_quantise(-OUTPUT_LIMIT, self.f["output"])
+        self.scale = _host_quantise(OUTPUT_UNIT_V / DAC_LSB_V, self.f["dac_scale"])
+        self.acc = 0
+        self.y_prev: int | None = None
+
+    def step(self, r: int, y_counts: int) -> tuple[int, int]:
+        """One sample: returns (output raw in the output format, DAC code)."""
+        fm = self.f
+        fy, fe, fg = _frac(fm["measurement"]), _frac(fm["error"]), _frac(fm["gain"])
+        ft, fi, fo = _frac(fm["term"]), _frac(fm["integrator"]), _frac(fm["output"])
+        y = _requant(y_counts, 0, fm["measurement"])
+        if self.y_prev is None:
+            self.y_prev = y
+        fd = max(0, fy)
+        e = _requant((r << fd) - (y << (fd - fy)), fd, fm["error"])
+        dy = _requant(y - self.y_prev, fy, fm["error"])
+        fp = fg + fe
+        p = _requant(self.kp * e, fp, fm["term"])
+        d = _requant(-(self.kd * dy), fp, fm["term"])
+        inc = self.ki * e
+        fa = max(fi, fp)
+        cand = _requant((self.acc << (fa - fi)) + (inc << (fa - fp)), fa, fm["integrator"])
+        fs = max(ft, fi, fo)
+        total = (p << (fs - ft)) + (cand << (fs - fi)) + (d << (fs - ft))
+        above = total > self.out_max << (fs - fo)
+        below = total < self.out_min << (fs - fo)
+        if not ((above and inc > 0) or (below and inc < 0)):
+            self.acc = cand
+        fs2 = max(ft, fi)
+        s = (p << (fs2 - ft)) + (self.acc << (fs2 - fi)) + (d << (fs2 - ft))
+        u = min(max(_requant(s, fs2, fm["output"]), self.out_min), self.out_max)
+        code = _requant(u * self.scale, fo + _frac(fm["dac_scale"]), fm["dac"])
+        self.y_prev = y
+        return u, code
+
+
+# --------------------------------------------------------------------------- simulation
+
+
+@dc.dataclass(frozen=True)
+class DesignedExperiment:
+    """A designed experiment: reference per sample, the PID gains and the role."""
+
+    name: str
+    reference_m: FloatArray
+    gains: tuple[float, float, float]
+    role: str
+
+
+def _gains(step_m: float) -> tuple[float, float, float]:
+    best = min(TABLE1_GAINS, key=lambda s: abs(math.log(s / abs(step_m))))
+    return TABLE1_GAINS[best]
+
+
+def simulate_closed_loop(
+    truth: Truth, reference_m: FloatArray, gains: tuple[float, float, float], seed: int
+) -> dict[str, FloatArray]:
+    """Run the closed loop on ``reference_m`` (one value per sample); returns ``time_s``,
+    ``position_m`` (the encoder reading), ``command_v`` (controller output at the amplifier
+    input), ``true_position_m`` and ``motor_position_m`` (r·θ)."""
+    p = truth.p
+    rng = np.random.default_rng(seed)
+    run = _Run(truth, level=float(rng.lognormal(0.0, p["friction_run_spread"])))
+    q, ts, lat = p["count_m"], p["sample_period_s"], p["latency_s"]
+    # The axis rests in the middle half of the reference's first count.
+    x0 = (math.floor(reference_m[0] / q) + float(rng.uniform(0.25, 0.75))) * q
+    y = _initial_state(run, x0, rng)
+    pid = FixedPointPid(*gains)
+    n = len(reference_m)
+    pos, cmd, xt, xm = (np.empty(n) for _ in range(4))
+    u_held = 0.0
+    vmax = p["amplifier_limit_v"]
+    for k in range(n):
+        counts = math.floor((y[_X] + rng.normal(0.0, p["encoder_noise_m"])) / q)
+        r_counts = round(float(reference_m[k]) / q)
+        out, code = pid.step(r_counts, counts)
+        pos[k], cmd[k] = counts * q, out / (1 << _frac(pid.f["output"])) * OUTPUT_UNIT_V
+        xt[k], xm[k] = y[_X], run.r * y[_TH]
+        u_new = min(max(code * DAC_LSB_V, -vmax), vmax)
+        th0 = y[_TH]
+        if u_new == u_held:
+            y = run.advance(y, u_held, ts)
+        else:
+            y = run.advance(y, u_held, lat)
+            y = run.advance(y, u_new, ts - lat)
+        u_held = u_new
+        # Dwell clock: time at rest (motor turned less than a bristle deflection).
+        still = abs(y[_TH] - th0) < p["bristle_deflection_rad"]
+        run.dwell_s = run.dwell_s + ts if still else 0.0
+    return {
+        "time_s": np.arange(n, dtype=np.float64) * ts,
+        "position_m": pos,
+        "command_v": cmd,
+        "true_position_m": xt,
+        "motor_position_m": xm,
+    }
+
+
+def simulate_open_loop(
+    truth: Truth, voltage_v: FloatArray, *, level: float = 1.0, x0_m: float = 0.0
+) -> dict[str, FloatArray]:
+    """Drive the plant with a voltage per sample (no controller, no noise, the given
+    friction level factor); returns time, table and motor positions (m) and velocities."""
+    run = _Run(truth, level=level)
+    y = _initial_state(run, x0_m, np.random.default_rng(truth.seed))
+    ts = truth.p["sample_period_s"]
+    n = len(voltage_v)
+    x, xm, v, vm = (np.empty(n + 1) for _ in range(4))
+    for k in range(n + 1):
+        x[k], xm[k], v[k] = y[_X], run.r * y[_TH], y[_V]
+        vm[k] = run.r * (y[_W] if not truth.rigid else y[_V] / run.r)
+        if k < n:
+            th0 = y[_TH]
+            y = run.advance(y, float(voltage_v[k]), ts)
+            still = abs(y[_TH] - th0) < truth.p["bristle_deflection_rad"]
+            run.dwell_s = run.dwell_s + ts if still else 0.0
+    return {
+        "time_s": np.arange(n + 1, dtype=np.float64) * ts,
+        "position_m": x,
+        "motor_position_m": xm,
+        "velocity_m_per_s": v,
+        "motor_velocity_m_per_s": vm,
+    }
+
+
+# --------------------------------------------------------------------------- design
+
+
+def experiment_design(
+    count: int = 12,
+    *,
+    move_s: float = 0.3,
+    dwells_s: Sequence[float] = (0.05, 0.3, 1.5),
+    ramp_speeds_m_per_s: Sequence[float] = (20e-6, 200e-6, 1e-3),
+    ramp_length_m: float = 50e-6,
+    micro_step_counts: int = 3,
+    sample_period_s: float = 1e-3,
+    start_m: float = 2e-3,
+) -> list[DesignedExperiment]:
+    """``count`` experiments cycling through steps (100 µm, 500 µm, 1 mm), micro-steps of
+    ``micro_step_counts`` counts after each dwell, slow ramps out and back at each speed
+    (a reversal), and step reversals; directions alternate, every third experiment
+    validates. Each starts at its own position, ``move_s`` after the last move."""
+    if count < 1:
+        raise ValueError(f"count = {count} is invalid: expected at least 1")
+    q = SEED["count_m"]
+    mid = 0.3 * q
+
+    def hold(x: float, s: float) -> FloatArray:
+        return np.full(max(1, round(s / sample_period_s)), x)
+
+    kinds: list[tuple[str, Any]] = []
+    for s in (100e-6, 500e-6, 1e-3):
+        kinds.append(("step", s))
+    for d in dwells_s:
+        kinds.append(("micro", d))
+    for v in ramp_speeds_m_per_s:
+        kinds.append(("ramp", v))
+    kinds.append(("reversal", 200e-6))
+    kinds.append(("reversal", 50e-6))
+    kinds.append(("micro", dwells_s[-1] if dwells_s else move_s))
+    out = []
+    for i in range(count):
+        kind, a = kinds[i % len(kinds)]
+        sign = 1.0 if (i // len(kinds) + i) % 2 == 0 else -1.0
+        x0 = start_m + (i % 20) * 2.2e-3 + mid
+        g: tuple[float, float, float]
+        if kind == "step":
+            ref = np.concatenate([hold(x0, 0.02), hold(x0 + sign * a, move_s)])
+            g = _gains(a)
+        elif kind == "micro":
+            ref = np.concatenate([hold(x0, a), hold(x0 + sign * micro_step_counts * q, move_s)])
+            g = TABLE1_GAINS[100e-6]
+        elif kind == "ramp":
+            n = max(2, round(ramp_length_m / a / sample_period_s))
+            up = x0 + sign * a * sample_period_s * np.arange(1, n + 1)
+            down = up[-1] - sign * a * sample_period_s * np.arange(1, n + 1)
+            ref = np.concatenate([hold(x0, 0.02), up, hold(up[-1], 0.05), down, hold(x0, move_s)])
+            g = TABLE1_GAINS[100e-6]
+        else:
+            ref = np.concatenate([hold(x0, 0.02), hold(x0 + sign * a, move_s), hold(x0, move_s)])
+            g = _gains(a)
+        role = "validate" if i % 3 == 2 else "train"
+        out.append(DesignedExperiment(f"exp{i:02d}_{kind}", ref, g, role))
+    return out
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def write_case(
+    hidden: str,
+    seed: int,
+    out_dir: str | Path,
+    *,
+    design: Sequence[DesignedExperiment] | None = None,
+) -> tuple[Path, dict[str, Any]]:
+    """Draw a truth, simulate the design and write ``manifest.toml``, one CSV trace per
+    experiment (``time_s, reference_m, position_m, command_v``) and ``truth.json`` into
+    ``out_dir``; returns the manifest path and the truth record."""
+    truth = draw_truth(hidden, seed)
+    exps = list(design) if design is not None else experiment_design()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    fc0 = SEED["table_coulomb_force_n"]
+    ts0, tc0 = SEED["static_torque_nm"], SEED["coulomb_torque_nm"]
+    lines = [
+        "[model]",
+        'preset = "seed"',
+        'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.static_torque_nm",',
+        '        "plant.motor_friction.coulomb_torque_nm"]',
+        "",
+        "[model.bounds]",
+        f'"plant.dahl.coulomb_force_n" = [{0.6 * fc0}, {1.5 * fc0}]',
+        f'"plant.motor_friction.static_torque_nm" = [{0.8 * ts0}, {1.5 * ts0}]',
+        f'"plant.motor_friction.coulomb_torque_nm" = [{0.7 * tc0}, {1.3 * tc0}]',
+        "",
+        "[diagnosis]",
+        'candidates = "all"',
+        f"seed = {seed}",
+        "",
+    ]
+    for i, e in enumerate(exps):
+        tr = simulate_closed_loop(truth, e.reference_m, e.gains, seed * 1000 + i)
+        data = np.column_stack([tr["time_s"], e.reference_m, tr["position_m"], tr["command_v"]])
+        np.savetxt(
+            out / f"{e.name}.csv",
+            data,
+            fmt="%.17g",
+            delimiter=",",
+            header="time_s,reference_m,position_m,command_v",
+            comments="",
+        )
+        kp, ki, kd = e.gains
+        lines += [
+            "[[experiment]]",
+            f'name = "{e.name}"',
+            f'file = "{e.name}.csv"',
+            f'role = "{e.role}"',
+            f"controller = {{ kp = {kp}, ki = {ki}, kd = {kd} }}",
+            "",
+        ]
+    manifest = out / "manifest.toml"
+    manifest.write_text("\n".join(lines), encoding="utf-8")
+    info = {
+        "family": "independent",
+        "hidden": hidden,
+        "parameters": truth.effect,
+        "nominal": truth.p,
+        "seed": seed,
+    }
+    write_json(info, out / "truth.json", indent=1)
+    return manifest, info

@@ -1,0 +1,222 @@
+"""The independent truth family (nanostage.diagnosis.independent_truth): its independence
+from nanostage's models, its physics, its controller, determinism and the case it writes."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses as dc
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from nanostage import presets
+from nanostage.diagnosis import independent_truth as it
+from nanostage.diagnosis import load_manifest
+from nanostage.effects import EFFECT_NAMES
+
+import pid_reference as ref
+
+MODULE = Path(it.__file__)
+
+
+def _short_design(count: int = 2) -> list[it.DesignedExperiment]:
+    return it.experiment_design(
+        count,
+        move_s=0.06,
+        dwells_s=(0.02,),
+        ramp_speeds_m_per_s=(1e-3,),
+        ramp_length_m=10e-6,
+    )
+
+
+def test_imports_nothing_of_nanostage_but_output() -> None:
+    tree = ast.parse(MODULE.read_text(encoding="utf-8"))
+    stdlib = set(sys.stdlib_module_names)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                top = a.name.split(".")[0]
+                assert top in stdlib or top in ("numpy", "scipy"), a.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                top = (node.module or "").split(".")[0]
+                assert top in stdlib or top in ("numpy", "scipy", "__future__"), node.module
+            else:
+                # Relative: only the output helpers of the package.
+                assert node.level == 2 and node.module == "output", ast.dump(node)
+
+
+def test_copied_seed_numbers_match_the_preset() -> None:
+    d = dc.asdict(presets.seed(1e-3))
+    pl = d["plant"]
+    v = it.SEED
+    assert v["resistance_ohm"] == pl["motor"]["resistance_ohm"]
+    assert v["inductance_h"] == pl["motor"]["inductance_h"]
+    assert v["torque_constant_nm_per_a"] == pl["motor"]["torque_constant_nm_per_a"]
+    assert v["back_emf_v_s_per_rad"] == pl["motor"]["back_emf_v_s_per_rad"]
+    assert v["rotor_inertia_kg_m2"] == pl["motor"]["rotor_inertia_kg_m2"]
+    assert v["static_torque_nm"] == pl["motor_friction"]["static_torque_nm"]
+    assert v["coulomb_torque_nm"] == pl["motor_friction"]["coulomb_torque_nm"]
+    assert v["viscous_nm_s_per_rad"] == pl["motor_friction"]["viscous_nm_s_per_rad"]
+    assert v["gear_ratio"] == pl["gearhead"]["ratio"]
+    assert v["gear_efficiency"] == pl["gearhead"]["efficiency"]
+    assert v["lead_m"] == pl["screw"]["lead_m"]
+    assert v["screw_efficiency"] == pl["screw"]["efficiency"]
+    assert v["screw_inertia_kg_m2"] == pl["screw"]["inertia_kg_m2"]
+    assert v["mass_kg"] == pl["table"]["mass_kg"]
+    assert v["table_coulomb_force_n"] == pl["dahl"]["coulomb_force_n"]
+    assert v["table_stiffness_n_per_m"] == pl["dahl"]["stiffness_n_per_m"]
+    assert v["count_m"] == d["encoder"]["count_m"]
+    assert v["amplifier_limit_v"] == d["output_stage"]["amplifier_limit_v"]
+    c = d["controller"]
+    assert v["sample_period_s"] == c["ticks_per_sample"] / c["clock_hz"]
+    assert v["latency_s"] == c["latency_ticks"] / c["clock_hz"]
+    assert it.DAC_LSB_V == c["dac_lsb_v"]
+    assert it.OUTPUT_UNIT_V == c["output_unit_v"]
+    assert it.OUTPUT_LIMIT == c["output_max"] == -c["output_min"]
+    for key, fmt in it.SEED_FORMATS.items():
+        f = c[f"{key}_format"]
+        assert fmt == (f["signed"], f["word_bits"], f["int_bits"], f["rounding"], f["overflow"])
+    for step, gains in it.TABLE1_GAINS.items():
+        assert gains == presets.table1_gains(step)
+
+
+def test_pid_matches_the_reference_on_a_recorded_sequence() -> None:
+    def fmt(t: tuple[bool, int, int, str, str]) -> dict[str, object]:
+        return dict(
+            zip(("signed", "word_bits", "int_bits", "rounding", "overflow"), t, strict=True)
+        )
+
+    rng = np.random.default_rng(3)
+    n = 400
+    # Errors from a few counts to beyond saturation, reference steps and reversals.
+    r = np.cumsum(rng.integers(-2, 3, n)) + np.where(np.arange(n) > 200, 3000, 0)
+    y = r - rng.integers(-40, 41, n) - np.where((np.arange(n) % 97) < 5, 2000, 0)
+    for kp, ki, kd in ((450.0, 2.0, 40.0), (450.0, 5.0, 10.0), (0.0, 2.0, 0.0), (12.3, 0.7, 3.1)):
+        cfg = {f"{k}_format": fmt(v) for k, v in it.SEED_FORMATS.items()}
+        cfg |= {
+            "kp": kp,
+            "ki": ki,
+            "kd": kd,
+            "anti_windup": "conditional",
+            "output_min": -it.OUTPUT_LIMIT,
+            "output_max": it.OUTPUT_LIMIT,
+            "output_unit_v": it.OUTPUT_UNIT_V,
+            "dac_lsb_v": it.DAC_LSB_V,
+        }
+        want = ref.run(cfg, [int(a) for a in r], [int(b) for b in y])
+        pid = it.FixedPointPid(kp, ki, kd)
+        got = [pid.step(int(a), int(b)) for a, b in zip(r, y, strict=True)]
+        assert [g[0] for g in got] == want["u"]
+        assert [g[1] for g in got] == want["code"]
+
+
+def test_open_loop_sliding_speed_matches_the_force_balance() -> None:
+    t = it.draw_truth("none", 11)
+    p = t.p
+    u = 2.5
+    out = it.simulate_open_loop(t, np.full(150, u))
+    v_end = out["velocity_m_per_s"][-1]
+    r, eta = t.r, t.eta
+
+    def balance(v: float) -> float:
+        w = v / r
+        i = (u - p["back_emf_v_s_per_rad"] * w) / p["resistance_ohm"]
+        g = p["coulomb_torque_nm"] + (p["static_torque_nm"] - p["coulomb_torque_nm"]) * math.exp(
+            -((w / p["stribeck_velocity_rad_per_s"]) ** 2)
+        )
+        tm = g + p["viscous_nm_s_per_rad"] * w
+        return eta / r * (p["torque_constant_nm_per_a"] * i - tm) - p["table_coulomb_force_n"]
+
+    v_ss = brentq(balance, 1e-6, u / p["back_emf_v_s_per_rad"] * r)
+    assert v_end == pytest.approx(v_ss, rel=1e-6)
+    assert np.std(out["velocity_m_per_s"][-20:]) < 1e-6 * v_ss
+
+
+def test_backlash_table_lags_the_motor_by_the_dead_band_on_a_reversal() -> None:
+    t = it.draw_truth("backlash", 4)
+    e = t.effect
+    n = 120
+    out = it.simulate_open_loop(t, np.concatenate([np.full(n, 2.0), np.full(n, -2.0)]))
+    d = out["motor_position_m"] - out["position_m"]
+    k = e["contact_stiffness_n_per_m"]
+    fc = t.p["table_coulomb_force_n"]
+    # Sliding both ways, the link carries the table friction: the flank contact is
+    # compressed by Fc/k on either side of the dead band.
+    assert d[n] == pytest.approx(0.5 * e["width_m"] + fc / k, rel=1e-4)
+    assert d[-1] == pytest.approx(-0.5 * e["width_m"] - fc / k, rel=1e-4)
+    # After the reversal the motor crosses the gap while the table stays (within its
+    # presliding relaxation, below a micrometre).
+    xm, x = out["motor_position_m"], out["position_m"]
+    crossing = np.flatnonzero(xm[n:] < xm[n] - 0.9 * e["width_m"])[0] + n
+    assert np.all(x[n:crossing] > x[n] - 1e-6)
+    assert x[-1] < x[n] - 100e-6
+
+
+def test_hidden_effects_drawn_and_named() -> None:
+    for h in it.HIDDEN_EFFECTS:
+        t = it.draw_truth(h, 2)
+        assert t.hidden == h
+        assert (t.effect == {}) == (h == "none")
+        # Nominal parameters are off the preset in every case.
+        assert t.p["table_coulomb_force_n"] != it.SEED["table_coulomb_force_n"]
+    assert not set(it.NOT_YET_WRITTEN) & set(it.HIDDEN_EFFECTS)
+    # Every written effect is a name the diagnosis can answer with.
+    assert set(it.HIDDEN_EFFECTS) - {"none"} <= set(EFFECT_NAMES)
+    with pytest.raises(ValueError, match="unknown hidden effect"):
+        it.draw_truth("gremlins", 1)
+
+
+def test_experiment_design_covers_the_kinds() -> None:
+    d = it.experiment_design(12)
+    assert len(d) == 12
+    kinds = {e.name.split("_", 1)[1] for e in d}
+    assert kinds == {"step", "micro", "ramp", "reversal"}
+    assert {e.role for e in d} == {"train", "validate"}
+    ramps = [e for e in d if e.name.endswith("ramp")]
+    speeds = sorted(float(np.max(np.abs(np.diff(e.reference_m)))) / 1e-3 for e in ramps)
+    assert speeds == pytest.approx([20e-6, 200e-6, 1e-3])
+    for e in ramps:  # out and back: a reversal
+        assert e.reference_m[-1] == pytest.approx(e.reference_m[0])
+    micro = [e for e in d if e.name.endswith("micro")]
+    for e in micro:
+        assert abs(e.reference_m[-1] - e.reference_m[0]) == pytest.approx(3e-7)
+    assert len(it.experiment_design(5, dwells_s=(0.1,))) == 5
+    with pytest.raises(ValueError):
+        it.experiment_design(0)
+
+
+@pytest.mark.parametrize("hidden", ["none", "dwell_static_friction"])
+def test_same_seed_same_traces(tmp_path: Path, hidden: str) -> None:
+    design = _short_design(1)
+    a = it.write_case(hidden, 7, tmp_path / "a", design=design)
+    b = it.write_case(hidden, 7, tmp_path / "b", design=design)
+    c = it.write_case(hidden, 8, tmp_path / "c", design=design)
+    names = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "b").iterdir())
+    for name in names:
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    trace = design[0].name + ".csv"
+    assert (tmp_path / "a" / trace).read_bytes() != (tmp_path / "c" / trace).read_bytes()
+    assert a[1] == b[1] and a[1] != c[1]
+
+
+def test_written_case_is_read_by_the_diagnosis(tmp_path: Path) -> None:
+    manifest, truth = it.write_case("offset_force", 3, tmp_path / "case", design=_short_design(3))
+    assert truth["hidden"] == "offset_force" and truth["family"] == "independent"
+    assert "force_n" in truth["parameters"]
+    m = load_manifest(manifest)
+    exps = m.experiments()
+    assert len(exps) == 3
+    for spec, e in exps:
+        assert spec.role in ("train", "validate")
+        assert e.command_v is not None
+        assert np.max(np.abs(e.command_v)) <= 6.0
+        # Encoder readings are whole counts.
+        counts = e.position_m / 1e-7
+        assert np.allclose(counts, np.round(counts), atol=1e-6)
+    assert {s.name for s in m.splits()} == {"roles"}
