@@ -23,6 +23,7 @@ from .config import (
     System,
     Table,
 )
+from .model_file import ModelFileError, load_model, load_model_file, save_model
 from .simulate import (
     OpenLoopTrace,
     Trace,
@@ -41,6 +42,7 @@ __all__ = [
     "Fxp",
     "Gearhead",
     "IntegratorOptions",
+    "ModelFileError",
     "Motor",
     "OpenLoopTrace",
     "OutputStage",
@@ -52,7 +54,10 @@ __all__ = [
     "Table",
     "Trace",
     "__version__",
+    "load_model",
+    "load_model_file",
     "presets",
+    "save_model",
     "simulate",
     "simulate_plant",
     "simulate_step",

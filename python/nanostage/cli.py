@@ -26,7 +26,7 @@ from types import FrameType
 from typing import Any, Final, NoReturn, cast
 
 from . import iso230_2
-from ._core import SimulationError
+from ._core import SimulationError, __version__
 from .output import check_output_dir, staged_output
 
 #: Exit codes.
@@ -345,6 +345,35 @@ def _tune(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _model_export(args: argparse.Namespace) -> int:
+    from .config import did_you_mean
+    from .model_file import save_model
+    from .presets import preset_names, preset_system
+
+    names = preset_names()
+    if args.preset not in names:
+        raise ValueError(
+            f"preset {args.preset!r} is unknown{did_you_mean(args.preset, names)}; the presets "
+            f"are: {', '.join(names)}"
+        )
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder: expected a file name (e.g. model.toml)")
+    if not out.parent.is_dir():
+        raise ValueError(f"--out {out}: the folder {out.parent} does not exist")
+    save_model(
+        preset_system(args.preset),
+        out,
+        provenance={
+            "source": f"preset {args.preset}",
+            "command": f"nanostage model export {args.preset}",
+            "version": __version__,
+        },
+    )
+    print(f"wrote {out}")
+    return EXIT_OK
+
+
 # --------------------------------------------------------------------------------------------
 # The parser and the entry point
 # --------------------------------------------------------------------------------------------
@@ -497,7 +526,13 @@ def _build_parser() -> argparse.ArgumentParser:
             "threads": "--threads",
         },
     )
-    for p in sub.choices.values():
+    mo = sub.add_parser("model", help="model files (docs/model-file.md)")
+    mo_sub = mo.add_subparsers(dest="action", required=True)
+    ex = mo_sub.add_parser("export", help="write a preset as a model file")
+    ex.add_argument("preset", metavar="PRESET", help="the preset (seed, emps, ...)")
+    ex.add_argument("--out", required=True, metavar="FILE", help="the model file to write")
+    ex.set_defaults(func=_model_export)
+    for p in [*sub.choices.values(), ex]:
         p.add_argument(
             "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
         )
