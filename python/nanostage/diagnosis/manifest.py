@@ -41,11 +41,13 @@ Schema
 
     [[experiment]]                  # one or more
     name = "step_100um_1"           # required, unique
-    file = "traces/step_100um_1.csv"  # required, relative to the manifest (CSV, .npz, .mat);
-                                    #   must resolve inside the manifest's folder
+    file = "traces/step_100um_1.csv"  # required, relative to the manifest (CSV, .npz, .mat,
+                                    #   .tdms); must resolve inside the manifest's folder
     role = "train"                  # optional: "train" | "validate"; all experiments or none.
                                     #   None: leave-one-experiment-out folds
     columns = { position_m = "qm" } # optional column map {standard name: name in the file}
+                                    #   (.tdms: "Group/Channel", or a channel name)
+    group = "Measurements"          # optional, .tdms only: the group of bare channel names
     units = "mm"                    # optional: unit of the length columns in the file, or
                                     #   { position_m = "um", time_s = "ms" } per column
     window_s = [0.0, 12.0]          # optional time window [start, stop) in s
@@ -135,6 +137,7 @@ _EXPERIMENT_KEYS: Final = (
     "file",
     "role",
     "columns",
+    "group",
     "units",
     "window_s",
     "controller",
@@ -241,6 +244,8 @@ class ExperimentSpec:
     index: int = 0
     #: Units of the file's columns (a length unit, or standard name → unit), or None: SI.
     units: str | Mapping[str, str] | None = None
+    #: ``.tdms`` files: the group whose channels are read under bare names, or None.
+    group: str | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -318,7 +323,11 @@ class Manifest:
         out: list[tuple[ExperimentSpec, Experiment]] = []
         total = 0
         for spec in self.experiment_specs:
-            key = (spec.file, repr(sorted((spec.columns or {}).items())), _units_key(spec.units))
+            key = (
+                spec.file,
+                repr((sorted((spec.columns or {}).items()), spec.group)),
+                _units_key(spec.units),
+            )
             try:
                 whole = cache.get(key)
                 if whole is None:
@@ -329,6 +338,7 @@ class Manifest:
                         units=spec.units,
                         travel_m=self.model.travel_m,
                         limits=self.limits,
+                        group=spec.group,
                     )
                     cache[key] = whole
                 exp = whole if spec.window_s is None else cut_window(whole, spec.window_s)
@@ -761,6 +771,14 @@ def _parse_experiment(
                 )
             columns[std] = ctx.string(fname, ckey)
     units = _parse_units(ctx, table, f"{key}.units", name, valid)
+    group: str | None = None
+    if "group" in table:
+        group = ctx.string(table["group"], f"{key}.group")
+        if file.suffix.lower() != ".tdms":
+            raise ctx.err(
+                f"{key}.group",
+                f"experiment {name!r}: group applies to .tdms files only, not {rel!r}",
+            )
     window: tuple[float, float] | None = None
     if "window_s" in table:
         w = table["window_s"]
@@ -787,6 +805,7 @@ def _parse_experiment(
         controller=ctrl,
         index=i,
         units=units,
+        group=group,
     )
 
 

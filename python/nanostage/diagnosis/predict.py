@@ -188,6 +188,7 @@ def predict(
                 units=spec.units,
                 travel_m=m.model.travel_m,
                 limits=m.limits,
+                group=spec.group,
             )
         except TraceError as exc:
             raise PredictError(f"{_located(exc)} (experiment {spec.name!r} of {path})") from exc

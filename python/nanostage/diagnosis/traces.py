@@ -1,4 +1,5 @@
-"""Read measured experiments (CSV, ``.npz``, MATLAB ``.mat``) as :class:`Experiment` objects.
+"""Read measured experiments (CSV, ``.npz``, MATLAB ``.mat``, LabVIEW ``.tdms``) as
+:class:`Experiment` objects.
 
 Every problem in a trace file is reported *before* anything is fitted, as a
 :class:`TraceError` that names the file and, when it applies, the 1-based line (CSV), the
@@ -22,6 +23,14 @@ CSV
 ``.mat``
     MATLAB files up to v7.2 (``scipy.io.loadmat``; v7.3 files are HDF5 and are rejected
     with a hint), one ``n × 1`` or ``1 × n`` numeric variable per column.
+``.tdms``
+    LabVIEW TDMS files (npTDMS, the ``tdms`` extra: ``pip install "nanostage[tdms]"``),
+    one channel per column. The column map names a channel ``"Group/Channel"``, or by its
+    name alone, looked up in the group given by ``group=`` or else in every group (it must
+    be in exactly one). Time is a ``time_s`` channel or, without one, comes from the
+    waveform properties ``wf_start_offset + k · wf_increment`` (s) of the channels read,
+    which must agree. Channel lengths are checked from the metadata before any data is
+    read.
 
 Columns are the standard names of :mod:`nanostage.experiment` (SI units):
 ``time_s``, ``reference_m``, ``position_m`` (required) and ``command_v``,
@@ -335,6 +344,7 @@ class _Table:
         self.data = data
         self.names = names  # standard name -> name in the file
         self.lines = lines  # physical line of each sample (CSV) or None
+        self.derived_time = False  # time_s from waveform properties (TDMS), in s
 
     def label(self, std: str) -> str:
         """``'qm' (position_m)`` for a mapped column, ``'position_m'`` otherwise."""
@@ -750,6 +760,177 @@ def _read_mat(
     return _from_arrays(file, selected, raw)
 
 
+#: Channel properties of a LabVIEW waveform: the sample period (s) and the first time (s).
+_WF_INCREMENT: Final[str] = "wf_increment"
+_WF_START: Final[str] = "wf_start_offset"
+
+
+def _import_tdms(file: str) -> Any:
+    """npTDMS's ``TdmsFile``, or a one-line error saying how to install it."""
+    try:
+        from nptdms import TdmsFile
+    except ImportError:
+        raise TraceError(
+            'reading .tdms files needs npTDMS: pip install "nanostage[tdms]"', file=file
+        ) from None
+    return TdmsFile
+
+
+def _tdms_channel(
+    file: str,
+    std: str,
+    fname: str | None,
+    channels: Mapping[str, Sequence[str]],
+    group: str | None,
+) -> tuple[str, str] | None:
+    """The ``(group, channel)`` a standard column is read from (None: an unmapped column
+    the file does not have). ``fname`` is the mapped name (``"Group/Channel"`` or a bare
+    channel name), None for an unmapped column (looked up under its standard name)."""
+    name = std if fname is None else fname
+    if fname is not None:
+        for g, chans in channels.items():
+            if name.startswith(g + "/") and name[len(g) + 1 :] in chans:
+                return g, name[len(g) + 1 :]
+    where = f"group {escaped(group)} does not have" if group is not None else "no group has"
+    if "/" in name and fname is not None:
+        g, c = name.split("/", 1)
+        if g not in channels:
+            raise TraceError(
+                f"the column map reads {std} from group {escaped(g)}, which the file does not "
+                f"have{did_you_mean(g, list(channels))}; groups: {short_names(list(channels))}",
+                file=file,
+                column=name,
+            )
+        chans = list(channels[g])
+        raise TraceError(
+            f"the column map reads {std} from channel {escaped(c)} of group {escaped(g)}, which "
+            f"the group does not have{did_you_mean(c, chans)}; its channels: {short_names(chans)}",
+            file=file,
+            column=name,
+        )
+    found = [g for g, chans in channels.items() if (group is None or g == group) and name in chans]
+    if len(found) == 1:
+        return found[0], name
+    if len(found) > 1:
+        raise TraceError(
+            f"channel {escaped(name)} ({std}) is in several groups ({short_names(found)}); name "
+            f'the group: columns = {{ {std} = "{found[0]}/{name}" }}, or group = "{found[0]}"',
+            file=file,
+            column=name,
+        )
+    if fname is None:
+        return None
+    pool = [c for g, chans in channels.items() if group is None or g == group for c in chans]
+    raise TraceError(
+        f"the column map reads {std} from channel {escaped(name)}, which {where}"
+        f"{did_you_mean(name, pool)}; channels: {short_names(pool)} (name a channel "
+        '"Group/Channel")',
+        file=file,
+        column=name,
+    )
+
+
+def _waveform_time(
+    file: str, meta: Any, selected: Mapping[str, tuple[str, str]], n: int
+) -> FloatArray:
+    """``time_s`` from the waveform properties of the selected channels (all must agree)."""
+    props: dict[str, tuple[float, float]] = {}
+    for g, c in selected.values():
+        pr = meta[g][c].properties
+        if _WF_INCREMENT in pr:
+            props[f"{g}/{c}"] = (pr[_WF_INCREMENT], pr.get(_WF_START, 0.0))
+    if not props:
+        raise TraceError(
+            f"no time: no time_s channel (map one with columns = {{ time_s = "
+            f'"Group/Channel" }}) and no {_WF_INCREMENT} property on the channels read '
+            f"({short_names([f'{g}/{c}' for g, c in selected.values()])})",
+            file=file,
+            column="time_s",
+        )
+    first, (inc, start) = next(iter(props.items()))
+    for name, (inc_k, start_k) in props.items():
+        if (inc_k, start_k) != (inc, start):
+            raise TraceError(
+                f"waveform timing {_WF_INCREMENT} = {inc_k!r} s, {_WF_START} = {start_k!r} s "
+                f"differs from that of {escaped(first)} ({inc!r} s, {start!r} s); the channels "
+                "of one trace must share their sampling",
+                file=file,
+                column=name,
+            )
+    try:
+        inc_f, start_f = float(inc), float(start)
+    except (TypeError, ValueError):
+        inc_f = start_f = math.nan
+    if not (math.isfinite(inc_f) and inc_f > 0.0 and math.isfinite(start_f)):
+        raise TraceError(
+            f"waveform timing {_WF_INCREMENT} = {inc!r}, {_WF_START} = {start!r} is invalid: "
+            "expected a finite step > 0 s and a finite start",
+            file=file,
+            column=first,
+        )
+    t: FloatArray = start_f + inc_f * np.arange(n, dtype=np.float64)
+    return t
+
+
+def _read_tdms(
+    path: Path,
+    columns: Mapping[str, str] | None,
+    schema: _Schema,
+    limits: TraceLimits,
+    group: str | None,
+) -> _Table:
+    """A LabVIEW TDMS file: channels found by the column map (``"Group/Channel"``, or a
+    channel name looked up in ``group`` or in every group); time from a ``time_s`` channel
+    or the waveform properties. Lengths are checked from the metadata before any data is
+    read."""
+    file = str(path)
+    _check_map(file, columns, schema)
+    _check_bytes(path, file, limits)
+    tdms_file = _import_tdms(file)
+    try:
+        meta = tdms_file.read_metadata(file)
+        channels = {g.name: [c.name for c in g.channels()] for g in meta.groups()}
+    except (ValueError, OSError, KeyError, EOFError) as exc:
+        raise TraceError(f"cannot read the TDMS file: {exc}", file=file) from None
+    if group is not None and group not in channels:
+        raise TraceError(
+            f"no group {escaped(group)}{did_you_mean(group, list(channels))}; groups: "
+            f"{short_names(list(channels))}",
+            file=file,
+        )
+    mapped = columns or {}
+    selected: dict[str, tuple[str, str]] = {}
+    for std in schema.columns:
+        where = _tdms_channel(file, std, mapped.get(std), channels, group)
+        if where is not None:
+            selected[std] = where
+    missing = [s for s in schema.required if s not in selected and s != "time_s"]
+    if missing:
+        pool = [f"{g}/{c}" for g, chans in channels.items() for c in chans]
+        raise TraceError(
+            f"missing required column(s) {', '.join(missing)}; channels: {short_names(pool)}; "
+            'map them with columns = {standard name = "Group/Channel"}',
+            file=file,
+        )
+    for g, c in selected.values():
+        _check_elements(file, f"{g}/{c}", len(meta[g][c]), limits)
+    try:
+        with tdms_file.open(file) as fh:
+            arrays = {f"{g}/{c}": fh[g][c][:] for g, c in selected.values()}
+    except (ValueError, OSError, KeyError, EOFError) as exc:
+        raise TraceError(f"cannot read the TDMS file: {exc}", file=file) from None
+    derived = "time_s" not in selected
+    if derived:
+        ref = selected["reference_m"]
+        n = len(arrays[f"{ref[0]}/{ref[1]}"])
+        arrays["time_s"] = _waveform_time(file, meta, selected, n)
+    fnames = {"time_s": "time_s"} if derived else {}
+    fnames.update({s: f"{g}/{c}" for s, (g, c) in selected.items()})
+    table = _from_arrays(file, fnames, arrays)
+    table.derived_time = derived
+    return table
+
+
 def _peak_to_peak(a: FloatArray) -> float:
     return float(np.max(a) - np.min(a))
 
@@ -958,6 +1139,7 @@ def _read_table(
     travel_m: float | None,
     limits: TraceLimits | None,
     needs_move: bool,
+    group: str | None = None,
 ) -> _Table:
     """Read, convert to SI and validate a trace file's columns."""
     p = Path(path)
@@ -969,6 +1151,12 @@ def _read_table(
     if not p.is_file():
         raise TraceError("no such file" if not p.exists() else "not a regular file", file=file)
     suffix = p.suffix.lower()
+    if group is not None and suffix != ".tdms":
+        raise TraceError(
+            f"group = {group!r} applies to .tdms files only (this file is {p.suffix or 'a file'} "
+            "without groups)",
+            file=file,
+        )
     try:
         if suffix in (".csv", ".txt"):
             table = _read_csv(p, columns, schema, lim)
@@ -976,12 +1164,22 @@ def _read_table(
             table = _read_npz(p, columns, schema, lim)
         elif suffix == ".mat":
             table = _read_mat(p, columns, schema, lim)
+        elif suffix == ".tdms":
+            table = _read_tdms(p, columns, schema, lim, group)
         else:
             raise TraceError(
-                f"unknown trace format {p.suffix!r}; expected .csv, .npz or .mat", file=file
+                f"unknown trace format {p.suffix!r}; expected .csv, .npz, .mat or .tdms",
+                file=file,
             )
     except OSError as exc:
         raise TraceError(f"cannot read the file ({exc.strerror or exc})", file=file) from None
+    if table.derived_time and "time_s" in factors:
+        raise TraceError(
+            f"units declare time_s, but the time comes from the waveform property {_WF_INCREMENT},"
+            " which is in seconds; leave time_s out of units (or map a time channel)",
+            file=file,
+            column="time_s",
+        )
     for std, f in factors.items():
         if std in table.data:
             table.data[std] = table.data[std] * f
@@ -998,14 +1196,15 @@ def read_trace(
     units: str | Mapping[str, str] | None = None,
     travel_m: float | None = None,
     limits: TraceLimits | None = None,
+    group: str | None = None,
 ) -> Experiment:
-    """Read and validate one experiment from a CSV, ``.npz`` or ``.mat`` file.
+    """Read and validate one experiment from a CSV, ``.npz``, ``.mat`` or ``.tdms`` file.
 
     Parameters
     ----------
     path : str or Path
         The trace file; the format follows the suffix (``.csv``/``.txt``, ``.npz``,
-        ``.mat``).
+        ``.mat``, ``.tdms``).
     columns : mapping of str to str, optional
         Column map ``{standard name: name in the file}`` for files that use other names;
         unmapped columns are looked up under their standard names.
@@ -1024,6 +1223,10 @@ def read_trace(
         :data:`MAX_TRAVEL_M`).
     limits : TraceLimits, optional
         Size limits (default: ``TraceLimits()``).
+    group : str, optional
+        ``.tdms`` files only: the group whose channels are read under bare names (column
+        map values without ``"Group/"`` and unmapped standard names); default: a channel
+        name is looked up in every group and must be in exactly one.
 
     Returns
     -------
@@ -1049,6 +1252,7 @@ def read_trace(
         travel_m=travel_m,
         limits=limits,
         needs_move=True,
+        group=group,
     )
     exp = Experiment(name=name or p.stem, source=str(p), **table.data)
     if window_s is not None:
@@ -1064,6 +1268,7 @@ def read_prediction_trace(
     units: str | Mapping[str, str] | None = None,
     travel_m: float | None = None,
     limits: TraceLimits | None = None,
+    group: str | None = None,
 ) -> dict[str, FloatArray]:
     """Read and validate the input trace of ``nanostage predict``.
 
@@ -1095,6 +1300,7 @@ def read_prediction_trace(
         travel_m=travel_m,
         limits=limits,
         needs_move=False,
+        group=group,
     )
     data = table.data
     if window_s is not None:
