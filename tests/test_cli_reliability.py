@@ -297,6 +297,11 @@ ERROR_CASES: list[tuple[list[str], list[str]]] = [
         ["--campaign-backlash-m", "0.5", "[0, 0.0001] m"],
     ),
     (["reproduce", "--campaign-trials", "many"], ["--campaign-trials", "'many'", "integer"]),
+    (["reproduce", "--model", "{tmp}/missing.model.toml", "--out", "{tmp}/r"], ["missing.model"]),
+    (
+        ["reproduce", "--campaigns", "--model", "{file}", "--out", "{tmp}/r"],
+        ["a_file.txt", "TOML"],
+    ),
     (
         ["diagnose-benchmark", "--cases", "0", "--out", "{tmp}/b"],
         ["--cases", "cases = 0", "[1, 10000]"],
@@ -311,6 +316,8 @@ ERROR_CASES: list[tuple[list[str], list[str]]] = [
     (["tune", "--spread", "0.9", "--out", "{tmp}/t"], ["--spread", "level_spread", "0.9"]),
     (["tune", "--threads", "0", "--out", "{tmp}/t"], ["--threads", "threads = 0", "[1, 1024]"]),
     (["tune", "--out", "{file}"], ["--out", "a_file.txt", "existing file"]),
+    (["tune", "--model", "{tmp}/missing.model.toml", "--out", "{tmp}/t"], ["missing.model"]),
+    (["tune", "--model", "{file}", "--out", "{tmp}/t"], ["a_file.txt", "TOML"]),
     (["iso230", "{tmp}/missing.csv"], ["missing.csv", "No such file"]),
     (
         ["iso230", "{latin1}", "--out", "{tmp}/i"],

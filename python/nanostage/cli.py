@@ -121,11 +121,35 @@ def _wrote(out: str | Path, names: Sequence[str]) -> str:
 # --------------------------------------------------------------------------------------------
 
 
+def _load_model_option(args: argparse.Namespace) -> Any:
+    """The System of ``--model FILE`` (None without it), loaded and validated; a bad file is
+    a :class:`~nanostage.ModelFileError` naming the file and the key."""
+    if getattr(args, "model", None) is None:
+        return None
+    from .model_file import load_model
+
+    return load_model(args.model)
+
+
+def _table1_model(args: argparse.Namespace) -> Any:
+    """``--model`` for the Table 1 studies: loaded, and checked to be a Table 1 axis."""
+    from .presets import table1_system
+
+    model = _load_model_option(args)
+    if model is not None:
+        try:
+            table1_system(1e-3, model)
+        except ValueError as exc:
+            raise ValueError(f"--model {args.model}: {exc}") from None
+    return model
+
+
 def _reproduce(args: argparse.Namespace) -> int:
     from .studies.paper_campaigns import CampaignSettings, check_threads, write_paper_campaigns_into
     from .studies.reproduce import reproduce_into
 
     # Every argument and the output folder are checked before any work.
+    model = _table1_model(args)
     campaigns = None
     if args.campaigns:
         campaigns = CampaignSettings(
@@ -137,7 +161,7 @@ def _reproduce(args: argparse.Namespace) -> int:
     check_output_dir(args.out)
     names = ["summary.json"] if args.no_plot else ["summary.json", "steps.png"]
     with staged_output(args.out, "reproduce") as folder:
-        summary = reproduce_into(folder, plot=not args.no_plot)
+        summary = reproduce_into(folder, plot=not args.no_plot, model=model)
         print(summary["table_markdown"])
         slew = summary["slew_at_voltage_limit"]
         assert isinstance(slew, dict)
@@ -153,6 +177,7 @@ def _reproduce(args: argparse.Namespace) -> int:
                 campaigns,
                 threads=args.threads,
                 log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+                model=model,
             )
             print()
             print(res["markdown"])
@@ -304,6 +329,7 @@ def _tune(args: argparse.Namespace) -> int:
     from .tune import Objective, check_search, tuning_cycle, with_friction_spread
 
     # Every argument and the output folder are checked before any work.
+    model = _table1_model(args)
     overshoot = None if args.overshoot_max_um is None else args.overshoot_max_um * 1e-6
     if args.objective == "mix":
         obj = Objective.mix(
@@ -319,7 +345,7 @@ def _tune(args: argparse.Namespace) -> int:
         obj = Objective.repeatability()
     steps = [s * 1e-6 for s in (args.step_um or [100.0, 500.0, 1000.0, 10000.0])]
     for step in steps:
-        with_friction_spread(presets.seed(step), args.spread)
+        with_friction_spread(presets.table1_system(step, model), args.spread)
         tuning_cycle(step)
     check_search(args.trials, args.seed, args.popsize, args.maxiter)
     if args.eval_trials is not None:
@@ -338,6 +364,7 @@ def _tune(args: argparse.Namespace) -> int:
         threads=args.threads,
         progress=not args.quiet,
         log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+        model=model,
     )
     files = write_tune_report(args.out, report, plot=not args.no_plot)
     print(markdown(report))
@@ -379,6 +406,15 @@ def _model_export(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------
 
 
+_TABLE1_MODEL_HELP: Final = (
+    "the axis as a model file (nanostage model export, save_model; docs/model-file.md): "
+    "plant, effects, controller formats and timing, encoder, output stage and integrator "
+    "are the model's; the PID gains of each step size are Table 1's (the seed preset's), "
+    "which a model file does not carry. The model must have a rigid_axis plant and an "
+    "fpga_pid controller (default: the seed preset)"
+)
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="nanostage", description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -393,6 +429,9 @@ def _build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("reproduce", help="simulate the paper's four step experiments")
     rep.add_argument("--out", default="out", help="output directory (default: out)")
     rep.add_argument("--no-plot", action="store_true", help="skip steps.png")
+    rep.add_argument(
+        "--model", default=None, metavar="FILE", help=_TABLE1_MODEL_HELP + "; also --campaigns"
+    )
     rep.add_argument(
         "--campaigns",
         action="store_true",
@@ -506,6 +545,7 @@ def _build_parser() -> argparse.ArgumentParser:
     tu.add_argument("--maxiter", type=_integer, default=10, help="generations (10)")
     tu.add_argument("--seed", type=_integer, default=0, help="seed of the search (0)")
     tu.add_argument("--threads", type=_integer, default=None, help="threads (default: all cores)")
+    tu.add_argument("--model", default=None, metavar="FILE", help=_TABLE1_MODEL_HELP)
     tu.add_argument("--out", default="tune", help="output directory (default: tune)")
     tu.add_argument("--no-plot", action="store_true", help="skip pareto.png")
     tu.add_argument("--quiet", action="store_true", help="no progress on stderr")

@@ -45,6 +45,7 @@ __all__ = [
     "seed_controller",
     "seed_plant",
     "table1_gains",
+    "table1_system",
 ]
 
 
@@ -251,6 +252,35 @@ def with_gains(system: System, *, kp: float, ki: float, kd: float) -> System:
     if not isinstance(ctl, FpgaPid):
         raise TypeError(f"with_gains needs an FpgaPid controller, not {type(ctl).__name__}")
     return replace(system, controller=replace(ctl, kp=kp, ki=ki, kd=kd))
+
+
+def table1_system(step_m: float, model: System | None = None) -> System:
+    """The system of a Table 1 study at ``step_m``: :func:`seed` ``(step_m)``, or with
+    ``model`` that model (plant, effects, controller formats and timing, encoder, output
+    stage, integrator) with the Table 1 gains of ``step_m`` in place of its own PID gains.
+
+    Raises
+    ------
+    ConfigError
+        If ``model`` does not have a rigid-axis plant (:class:`Plant`) and an FPGA PID
+        (:class:`FpgaPid`): the Table 1 studies are of such an axis.
+    """
+    if model is None:
+        return seed(step_m)
+    if not isinstance(model, System):
+        raise _core.ConfigError(
+            f"model = {model!r} is invalid: expected a nanostage.System (e.g. "
+            "nanostage.load_model(path))"
+        )
+    if not isinstance(model.plant, Plant) or not isinstance(model.controller, FpgaPid):
+        raise _core.ConfigError(
+            f"model: a {type(model.plant).__name__} plant with a "
+            f"{type(model.controller).__name__} controller is not a Table 1 axis: expected "
+            'plant kind = "rigid_axis" and controller kind = "fpga_pid" (as in the seed '
+            "model)"
+        )
+    kp, ki, kd = table1_gains(step_m)
+    return with_gains(model, kp=kp, ki=ki, kd=kd)
 
 
 #: EMPS numbers (Janot, Gautier, Brunot 2019; ../shared/data/emps/SOURCE.md): the

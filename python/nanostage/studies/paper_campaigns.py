@@ -11,7 +11,9 @@ Method:
 * Cycle: :func:`nanostage.cycles.step_cycle` with ``repeats`` steps (5, as ISO 230-2's
   standard cycle has 5 runs), ``dwell_s`` at the target before the reading and ``return_s``
   at the start; the paper gives none of these.
-* System: :func:`nanostage.presets.seed` with the Table 1 gains of each step size, plus
+* System: :func:`nanostage.presets.seed` with the Table 1 gains of each step size (or a
+  given ``model``, e.g. from :func:`nanostage.load_model`, with the Table 1 gains of each
+  step size in place of its PID gains: :func:`nanostage.presets.table1_system`), plus
   :class:`~nanostage.effects.StochasticFriction` ``(level_spread=s)`` (one setting: a per-
   trial factor on every friction level, log-normal with mean 1; no within-trial
   fluctuation); with ``CampaignSettings.backlash_width_m`` also the gearhead backlash (a
@@ -188,8 +190,10 @@ def _cycle(step_m: float, st: CampaignSettings) -> Cycle:
     )
 
 
-def _system(step_m: float, spread: float, backlash_width_m: float = 0.0) -> System:
-    base = presets.seed(step_m)
+def _system(
+    step_m: float, spread: float, backlash_width_m: float = 0.0, model: System | None = None
+) -> System:
+    base = presets.table1_system(step_m, model)
     backlash = Backlash(width_m=backlash_width_m) if backlash_width_m > 0.0 else None
     return replace(
         base,
@@ -200,11 +204,17 @@ def _system(step_m: float, spread: float, backlash_width_m: float = 0.0) -> Syst
 
 
 def step_campaign(
-    step_m: float, spread: float, st: CampaignSettings, *, threads: int | None = None
+    step_m: float,
+    spread: float,
+    st: CampaignSettings,
+    *,
+    threads: int | None = None,
+    model: System | None = None,
 ) -> CampaignResult:
-    """One campaign of repeated ``step_m`` steps at ``level_spread = spread``."""
+    """One campaign of repeated ``step_m`` steps at ``level_spread = spread`` (on the seed
+    axis, or on ``model`` with the Table 1 gains)."""
     return run_campaign(
-        _system(step_m, spread, st.backlash_width_m),
+        _system(step_m, spread, st.backlash_width_m, model),
         _cycle(step_m, st),
         n_trials=st.n_trials,
         seed=st.seed,
@@ -263,8 +273,12 @@ def paper_campaigns(
     *,
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
+    model: System | None = None,
 ) -> dict[str, Any]:
     """Scan, calibrate on the 100 µm figure (on A↑ and on R↑ separately) and predict 1 mm.
+
+    ``model``: the axis (default: the seed preset), with the Table 1 gains of each step
+    size in place of its PID gains; checked before any campaign runs.
 
     Returns
     -------
@@ -275,6 +289,8 @@ def paper_campaigns(
         ``better_reading`` and ``compute_s``. Lengths in metres.
     """
     st = st or CampaignSettings()
+    for step in (CALIBRATION_STEP_M, PREDICTION_STEP_M):
+        _system(step, 0.0, st.backlash_width_m, model)
     say = log or (lambda _msg: None)
     t0 = time.perf_counter()
     cache: dict[tuple[float, float], dict[str, Any]] = {}
@@ -282,7 +298,7 @@ def paper_campaigns(
     def readings(step_m: float, s: float) -> dict[str, Any]:
         key = (step_m, s)
         if key not in cache:
-            cache[key] = _readings(step_campaign(step_m, s, st, threads=threads))
+            cache[key] = _readings(step_campaign(step_m, s, st, threads=threads, model=model))
             r = cache[key]
             say(
                 f"  {step_m * 1e6:6.0f} µm, spread {s:.4f}: A↑ mean "
@@ -413,6 +429,7 @@ def write_paper_campaigns(
     *,
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
+    model: System | None = None,
 ) -> dict[str, Any]:
     """Run :func:`paper_campaigns`, write ``campaigns.json`` and ``campaigns.md``.
 
@@ -421,7 +438,7 @@ def write_paper_campaigns(
     """
     check_threads(threads)
     with staged_output(out_dir, "reproduce --campaigns") as folder:
-        return write_paper_campaigns_into(folder, st, threads=threads, log=log)
+        return write_paper_campaigns_into(folder, st, threads=threads, log=log, model=model)
 
 
 def write_paper_campaigns_into(
@@ -430,12 +447,13 @@ def write_paper_campaigns_into(
     *,
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
+    model: System | None = None,
 ) -> dict[str, Any]:
     """:func:`write_paper_campaigns` writing straight into an existing ``folder`` (a staged
     one)."""
     check_threads(threads)
     out = Path(folder)
-    res = paper_campaigns(st, threads=threads, log=log)
+    res = paper_campaigns(st, threads=threads, log=log, model=model)
     write_json(res, out / "campaigns.json", indent=2)
     md = markdown(res)
     (out / "campaigns.md").write_text(md, encoding="utf-8")

@@ -1,4 +1,10 @@
-"""``nanostage reproduce``: the paper's four step experiments with the Table 1 gains."""
+"""``nanostage reproduce``: the paper's four step experiments with the Table 1 gains.
+
+Every function takes an optional ``model`` (a :class:`~nanostage.System`, e.g. from
+:func:`nanostage.load_model`): the axis is then that model, with the Table 1 gains of each
+step size in place of its PID gains (:func:`nanostage.presets.table1_system`); without it,
+the seed preset.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +15,7 @@ from pathlib import Path
 
 from .. import presets
 from ..analysis import StepMetrics, step_metrics
-from ..config import FpgaPid, Plant
+from ..config import FpgaPid, Plant, System
 from ..output import staged_output, write_json
 from ..simulate import Trace, simulate_step
 
@@ -50,11 +56,12 @@ class Experiment:
     metrics: StepMetrics
 
 
-def run_experiments() -> list[Experiment]:
-    """Simulate the four Table 1 steps on the seed axis."""
+def run_experiments(model: System | None = None) -> list[Experiment]:
+    """Simulate the four Table 1 steps on the seed axis (or on ``model`` with the Table 1
+    gains)."""
+    systems = [presets.table1_system(step, model) for step, _ in EXPERIMENTS_M_S]
     out = []
-    for step, duration in EXPERIMENTS_M_S:
-        system = presets.seed(step)
+    for (step, duration), system in zip(EXPERIMENTS_M_S, systems, strict=True):
         tr = simulate_step(system, step, duration_s=duration)
         c = system.controller
         assert isinstance(c, FpgaPid)
@@ -87,23 +94,29 @@ def table(exps: list[Experiment]) -> str:
     return "\n".join(rows)
 
 
-def reproduce(out_dir: str | Path, *, plot: bool = True) -> dict[str, object]:
+def reproduce(
+    out_dir: str | Path, *, plot: bool = True, model: System | None = None
+) -> dict[str, object]:
     """Run the experiments, write ``summary.json`` (and ``steps.png``), return the summary.
 
     The folder is written whole or not at all (:func:`nanostage.output.staged_output`): it
     must be new, empty or an earlier run's folder, which is checked before any work.
+    ``model``: the axis (module docstring), checked before any work.
     """
+    presets.table1_system(1e-3, model)
     with staged_output(out_dir, "reproduce") as folder:
-        return reproduce_into(folder, plot=plot)
+        return reproduce_into(folder, plot=plot, model=model)
 
 
-def reproduce_into(folder: Path, *, plot: bool = True) -> dict[str, object]:
+def reproduce_into(
+    folder: Path, *, plot: bool = True, model: System | None = None
+) -> dict[str, object]:
     """:func:`reproduce` writing straight into an existing ``folder`` (a staged one)."""
     out = Path(folder)
+    system = presets.table1_system(1e-3, model)
     t0 = time.perf_counter()
-    exps = run_experiments()
+    exps = run_experiments(model)
     compute_s = time.perf_counter() - t0
-    system = presets.seed()
     v_lim = system.output_stage.amplifier_limit_v
     assert isinstance(system.plant, Plant)
     v_slew = slew_velocity_m_per_s(system.plant, v_lim)

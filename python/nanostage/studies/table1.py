@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from .. import presets
+from ..config import System
 from ..output import staged_output, write_json
 from ..tune import (
     Objective,
@@ -44,8 +45,14 @@ def tune_table1(
     executor: Executor | Any | None = None,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
+    model: System | None = None,
 ) -> dict[str, Any]:
     """Tune the seed axis for each step size and compare with the paper's Table 1 gains.
+
+    ``model`` (a :class:`~nanostage.System`, e.g. from :func:`nanostage.load_model`):
+    tune that axis instead (plant, effects, controller formats and timing, encoder, output
+    stage, integrator), starting each step size from the Table 1 gains, which a System does
+    not carry (:func:`nanostage.presets.table1_system`); checked before any search.
 
     The search uses campaign seed ``seed``; the comparison re-runs both gain sets on
     ``eval_trials`` (default ``n_trials``) *other* draws (campaign seed ``seed + 1``), the
@@ -55,8 +62,9 @@ def tune_table1(
     eval_n = n_trials if eval_trials is None else eval_trials
     rows: list[dict[str, Any]] = []
     results: dict[float, TuneResult] = {}
-    for step in steps_m:
-        system = with_friction_spread(presets.seed(step), level_spread)
+    systems = [presets.table1_system(step, model) for step in steps_m]
+    for step, base in zip(steps_m, systems, strict=True):
+        system = with_friction_spread(base, level_spread)
         cycle = tuning_cycle(step)
         if log:
             log(f"tuning the {step * 1e6:g} µm step ({n_trials} trials per candidate)")
