@@ -331,6 +331,14 @@ ERROR_CASES: list[tuple[list[str], list[str]]] = [
     (["diagnose", "{tmp}/missing.toml", "--out", "{tmp}/d"], ["missing.toml"]),
     (["diagnose", "{tmp}/missing.toml", "--out", "{file}"], ["--out", "existing file"]),
     (["predict", "{tmp}/missing.toml", "--out", "{tmp}/p"], ["missing.toml"]),
+    (
+        ["predict", "{tmp}/m.toml", "--model", "{file}", "--out", "{tmp}/p"],
+        ["a_file.txt", "TOML"],
+    ),
+    (
+        ["diagnose", "{tmp}/m.toml", "--model", "{tmp}/missing.model.toml", "--out", "{tmp}/d"],
+        ["missing.model.toml"],
+    ),
     (["model", "export", "sed", "--out", "{tmp}/m.toml"], ["'sed'", "did you mean 'seed'"]),
     (["model", "export", "seed", "--out", "{tmp}"], ["--out", "is a folder"]),
     (["model", "export", "seed", "--out", "{tmp}/no/m.toml"], ["--out", "does not exist"]),

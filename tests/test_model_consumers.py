@@ -5,12 +5,16 @@ and a bad model file is a one-line exit-2 error before any work."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
-from nanostage import ConfigError, cli, load_model, presets
+from nanostage import ConfigError, cli, load_model, presets, simulate_step
+from nanostage.diagnosis.manifest import ManifestError, load_manifest
+from nanostage.diagnosis.predict import predict
 from nanostage.studies import reproduce as reproduce_mod
 from nanostage.studies import table1
 
@@ -153,3 +157,125 @@ def test_python_api_takes_a_system(models: dict[str, Path], tmp_path: Path) -> N
     with pytest.raises(ConfigError, match="Table 1 axis"):
         reproduce_mod.reproduce(tmp_path / "e", plot=False, model=load_model(models["emps"]))
     assert not (tmp_path / "e").exists()
+
+
+# ---- manifests: [model] file as the nominal model, --model on predict and diagnose ------
+
+
+def _trace(folder: Path) -> None:
+    tr = simulate_step(presets.seed(100e-6), 100e-6, duration_s=0.05)
+    n = len(tr.time_s)
+    dt = float(tr.time_s[1] - tr.time_s[0])
+    cols = {
+        "time_s": dt * np.arange(n, dtype=np.float64),
+        "reference_m": np.asarray(tr.reference_m, dtype=np.float64),
+        "position_m": np.asarray(tr.encoder_position_m, dtype=np.float64),
+    }
+    np.savetxt(
+        folder / "step.csv", np.column_stack(list(cols.values())), fmt="%.17g", delimiter=",",
+        header=",".join(cols), comments="",
+    )  # fmt: skip
+
+
+def _manifest(folder: Path, model: str) -> Path:
+    (folder / "m.toml").write_text(
+        f'[model]\n{model}\n\n[[experiment]]\nname = "step"\nfile = "step.csv"\n',
+        encoding="utf-8",
+    )
+    return folder / "m.toml"
+
+
+@pytest.fixture
+def case(models: dict[str, Path], tmp_path: Path) -> Path:
+    """A folder with a trace and the model files (inside the manifest's folder)."""
+    _trace(tmp_path)
+    for name in ("seed", "heavy", "bad"):
+        shutil.copy(models[name], tmp_path / models[name].name)
+    (tmp_path / "over.toml").write_text("[plant.table]\nmass_kg = 2.0\n", encoding="utf-8")
+    return tmp_path
+
+
+def _predicted(folder: Path) -> bytes:
+    return (folder / "step.csv").read_bytes()
+
+
+def test_manifest_model_file_is_the_nominal_model(case: Path) -> None:
+    preset = load_manifest(_manifest(case, 'preset = "seed"'))
+    model = load_manifest(_manifest(case, 'file = "seed.model.toml"'))
+    assert model.model.preset is None and model.model.base == presets.seed()
+    assert model.system() == preset.system()
+    assert model.model.travel_m == preset.model.travel_m
+    heavy = load_manifest(_manifest(case, 'file = "heavy.model.toml"'))
+    old = load_manifest(_manifest(case, 'preset = "seed"\nfile = "over.toml"'))
+    assert heavy.system() == old.system() != preset.system()
+    given = load_manifest(
+        _manifest(case, 'preset = "seed"'), model=load_model(case / "heavy.model.toml")
+    )
+    assert given.system() == heavy.system()
+
+
+def test_predict_with_a_model_file(case: Path) -> None:
+    out = {}
+    for name, model in [
+        ("preset", 'preset = "seed"'),
+        ("file", 'file = "seed.model.toml"'),
+        ("heavy", 'file = "heavy.model.toml"'),
+        ("old", 'preset = "seed"\nfile = "over.toml"'),
+    ]:
+        assert _run("predict", str(_manifest(case, model)), "--out", str(case / name)) == 0
+        out[name] = _predicted(case / name)
+    m = _manifest(case, 'preset = "seed"')
+    assert (
+        _run(
+            "predict", str(m), "--model", str(case / "heavy.model.toml"), "--out", str(case / "cli")
+        )
+        == 0
+    )
+    assert out["file"] == out["preset"]
+    assert out["heavy"] == out["old"] == _predicted(case / "cli") != out["preset"]
+    api = predict(m, case / "api", model=load_model(case / "heavy.model.toml"))
+    assert api["experiments"]["step"]["samples"] > 0
+    assert _predicted(case / "api") == out["heavy"]
+
+
+@pytest.mark.parametrize("command", ["predict", "diagnose"])
+@pytest.mark.parametrize(
+    ("model", "option", "words"),
+    [
+        ('file = "bad.model.toml"', None, ["m.toml", "model.file", "plant.table.mas_kg"]),
+        ('preset = "seed"', "bad.model.toml", ["bad.model.toml", "plant.table.mas_kg"]),
+        (
+            'preset = "seed"\nfile = "seed.model.toml"',
+            None,
+            ["model.preset", "is a model file", "not both"],
+        ),
+        ('file = "../outside.model.toml"', None, ["model.file", "outside the manifest's folder"]),
+    ],
+)
+def test_a_bad_manifest_model_is_one_line(
+    case: Path,
+    capsys: pytest.CaptureFixture[str],
+    command: str,
+    model: str,
+    option: str | None,
+    words: list[str],
+) -> None:
+    shutil.copy(case / "seed.model.toml", case.parent / "outside.model.toml")
+    argv = [command, str(_manifest(case, model)), "--out", str(case / "out")]
+    if option is not None:
+        argv += ["--model", str(case / option)]
+    capsys.readouterr()
+    assert _run(*argv) == cli.EXIT_ERROR
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    for w in words:
+        assert w in err, err
+    assert not (case / "out").exists()
+
+
+def test_the_folder_rule_and_trace_root(case: Path) -> None:
+    shutil.copy(case / "seed.model.toml", case.parent / "outside.model.toml")
+    m = _manifest(case, 'file = "../outside.model.toml"')
+    with pytest.raises(ManifestError, match="outside the manifest's folder"):
+        load_manifest(m)
+    assert load_manifest(m, trace_root=case.parent).system() == presets.seed()

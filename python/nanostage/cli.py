@@ -189,6 +189,14 @@ def _reproduce(args: argparse.Namespace) -> int:
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     """Options of the commands that read a manifest's trace files (docs/diagnosis.md)."""
     p.add_argument(
+        "--model",
+        default=None,
+        metavar="FILE",
+        help="the nominal model as a model file (nanostage model export, save_model; "
+        "docs/model-file.md), in place of the manifest's [model] preset or model file; the "
+        "manifest's overrides and controller gains apply to it",
+    )
+    p.add_argument(
         "--trace-root",
         default=None,
         metavar="DIR",
@@ -234,8 +242,11 @@ def _diagnose(args: argparse.Namespace) -> int:
     from .diagnosis.manifest import load_manifest
     from .diagnosis.run import diagnose
 
+    model = _load_model_option(args)
     check_output_dir(args.out)
-    manifest = load_manifest(args.manifest, trace_root=args.trace_root, limits=_trace_limits(args))
+    manifest = load_manifest(
+        args.manifest, trace_root=args.trace_root, limits=_trace_limits(args), model=model
+    )
     d = diagnose(manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
     r = d.report
     before, after = r["gap_before"]["total_rms_m"], r["gap_after"]["total_rms_m"]
@@ -286,12 +297,14 @@ def _benchmark(args: argparse.Namespace) -> int:
 def _predict(args: argparse.Namespace) -> int:
     from .diagnosis.predict import predict
 
+    model = _load_model_option(args)
     check_output_dir(args.out)
     s = predict(
         args.manifest,
         args.out,
         trace_root=args.trace_root,
         limits=_trace_limits(args, prediction=True),
+        model=model,
     )
     for name, e in s["experiments"].items():
         extra = (

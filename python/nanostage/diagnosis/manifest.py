@@ -11,12 +11,16 @@ Schema
 .. code-block:: toml
 
     [model]
-    preset = "seed"                 # required: a preset name (see PRESET_NAMES())
+    preset = "seed"                 # a preset name (see PRESET_NAMES()), or a model file:
+    # file = "axis.model.toml"      #   a model file (schema_version = 1, docs/model-file.md)
+                                    #   is the nominal model in place of a preset
     travel_m = 0.05                 # optional: the axis travel, m (default: the preset's,
                                     #   PRESET_TRAVEL_M); position columns beyond it are
                                     #   taken for millimetres
-    file = "model.toml"             # optional: a TOML file of overrides, relative to the
-                                    #   manifest, e.g.  [plant.table]  mass_kg = 0.8
+    file = "model.toml"             # optional with a preset: a TOML file of overrides,
+                                    #   relative to the manifest, e.g. [plant.table]
+                                    #   mass_kg = 0.8 (a file with schema_version is a
+                                    #   model file instead, and then preset is not given)
     free = ["plant.dahl.coulomb_force_n", "plant.dahl.stiffness_n_per_m"]
                                     # optional: free parameters, dotted paths into the
                                     #   preset's dataclass tree (numeric fields only)
@@ -82,9 +86,11 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Final, Literal
 
-from ..config import did_you_mean, field_paths, get_path, replace_paths
+from .._core import ConfigError
+from ..config import Plant, System, did_you_mean, field_paths, get_path, replace_paths
 from ..effects import EFFECT_NAMES
 from ..experiment import Experiment
+from ..model_file import load_model
 from ..output import OutputError, check_file_stems
 from ..presets import PRESET_CONTROLLER_KIND, PRESET_TRAVEL_M, preset_names, preset_system
 from .traces import (
@@ -204,10 +210,10 @@ class ModelSpec:
 
     Attributes
     ----------
-    preset : str
-        Preset name.
+    preset : str or None
+        Preset name (None: the nominal model is :attr:`base`).
     file : Path or None
-        The overrides file, resolved.
+        The overrides file or the model file, resolved.
     overrides : mapping of str to Any
         Dotted path → value (the file's, then the manifest's ``[model.overrides]``).
     free : tuple of str
@@ -219,15 +225,27 @@ class ModelSpec:
     travel_m : float
         The axis travel, m (``model.travel_m`` or :data:`PRESET_TRAVEL_M`): the scale the
         traces' length columns are checked against.
+    base : System or None
+        The nominal model of a model file (``model.file`` with ``schema_version``, or the
+        ``model=`` argument of :func:`load_manifest`), the overrides not applied; None: the
+        preset.
     """
 
-    preset: str
+    preset: str | None
     file: Path | None
     overrides: Mapping[str, Any]
     free: tuple[str, ...]
     bounds: Mapping[str, tuple[float, float]]
     initial: Mapping[str, float]
     travel_m: float = MAX_TRAVEL_M
+    base: System | None = None
+
+    def nominal(self) -> System:
+        """The nominal model before the overrides: the model file's, or the preset's."""
+        if self.base is not None:
+            return self.base
+        assert self.preset is not None
+        return preset_system(self.preset)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -300,7 +318,7 @@ class Manifest:
         set as ``controller.<gain>``; gains the manifest does not give keep the preset's
         values. The controller kind was checked against the preset's controller at load.
         """
-        system = replace_paths(preset_system(self.model.preset), self.model.overrides)
+        system = replace_paths(self.model.nominal(), self.model.overrides)
         ctrl = self.controller if experiment is None else experiment.controller
         gains = {f"controller.{k}": v for k, v in ctrl.gains.items()}
         return replace_paths(system, gains) if gains else system
@@ -571,31 +589,61 @@ def _parse_controller(
     return ControllerSpec(kind=kind, gains=MappingProxyType(gains))
 
 
-def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
+def _read_model_file(ctx: _Ctx, path: Path) -> System:
+    try:
+        return load_model(path)
+    except (ConfigError, OSError) as exc:
+        raise ctx.err("model.file", str(exc)) from None
+
+
+def _parse_model(
+    ctx: _Ctx, raw: Any, base_dir: Path, model: System | None = None
+) -> tuple[ModelSpec, Any]:
     table = ctx.table(raw, "model")
     ctx.keys(table, ctx.allowed(_MODEL_KEYS, "model"), "model")
-    if "preset" not in table:
-        raise ctx.err("model.preset", f"missing; give a preset name ({', '.join(preset_names())})")
-    preset = ctx.string(table["preset"], "model.preset")
-    names = preset_names()
-    if preset not in names:
-        raise ctx.err(
-            "model.preset",
-            f"unknown preset {preset!r}"
-            f"{did_you_mean(preset, names)}; valid presets: {', '.join(names)}",
-        )
-    root = preset_system(preset)
-
-    overrides: dict[str, Any] = {}
     model_file: Path | None = None
+    file_data: dict[str, Any] | None = None
     if "file" in table:
         model_file = ctx.inside(
             "model.file", ctx.string(table["file"], "model.file"), base_dir, "model file"
         )
         if not model_file.is_file():
-            raise ctx.err("model.file", f"model overrides file {str(model_file)!r} not found")
+            raise ctx.err("model.file", f"model file {str(model_file)!r} not found")
+        file_data = _load_toml(model_file)
+        if "schema_version" in file_data:  # a model file (docs/model-file.md)
+            if "preset" in table:
+                raise ctx.err(
+                    "model.preset",
+                    f"model.file {str(model_file)!r} is a model file (it has schema_version), "
+                    "the nominal model: give it or a preset, not both",
+                )
+            if model is None:
+                model = _read_model_file(ctx, model_file)
+            file_data = None
+    preset: str | None = None
+    if model is not None:
+        root = model
+    else:
+        if "preset" not in table:
+            raise ctx.err(
+                "model.preset",
+                f"missing; give a preset name ({', '.join(preset_names())}) or a model file "
+                '(file = "axis.model.toml")',
+            )
+        preset = ctx.string(table["preset"], "model.preset")
+        names = preset_names()
+        if preset not in names:
+            raise ctx.err(
+                "model.preset",
+                f"unknown preset {preset!r}"
+                f"{did_you_mean(preset, names)}; valid presets: {', '.join(names)}",
+            )
+        root = preset_system(preset)
+
+    overrides: dict[str, Any] = {}
+    if file_data is not None and model_file is not None:  # a file of overrides
         fctx = _Ctx(model_file)
-        for path, value in _flatten(_load_toml(model_file)).items():
+        for path, value in _flatten(file_data).items():
             overrides[path] = _check_override(fctx, root, path, value, path)
     if "overrides" in table:
         inline = _flatten(ctx.table(table["overrides"], "model.overrides"))
@@ -664,7 +712,10 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
             )
         a, b = v / 3.0, v * 3.0
         bounds[path] = (min(a, b), max(a, b))
-    travel = PRESET_TRAVEL_M.get(preset, MAX_TRAVEL_M)
+    if preset is not None:
+        travel = PRESET_TRAVEL_M.get(preset, MAX_TRAVEL_M)
+    else:  # a model file: the travel of the preset of its plant kind
+        travel = PRESET_TRAVEL_M["seed" if isinstance(root.plant, Plant) else "emps"]
     if "travel_m" in table:
         travel = ctx.number(table["travel_m"], "model.travel_m")
         if not 0.0 < travel <= _MAX_TRAVEL_SETTING_M:
@@ -681,6 +732,7 @@ def _parse_model(ctx: _Ctx, raw: Any, base_dir: Path) -> tuple[ModelSpec, Any]:
         bounds=MappingProxyType({p: bounds[p] for p in free}),
         initial=MappingProxyType(initial),
         travel_m=travel,
+        base=None if preset is not None else root,
     )
     return spec, system
 
@@ -879,6 +931,7 @@ def load_manifest(
     *,
     trace_root: str | Path | None = None,
     limits: TraceLimits | None = None,
+    model: System | None = None,
 ) -> Manifest:
     """Load and validate a diagnosis manifest (schema in the module docstring).
 
@@ -898,6 +951,10 @@ def load_manifest(
         links); default: the manifest's folder. Give it to read traces kept elsewhere.
     limits : TraceLimits, optional
         Size limits of the traces (default ``TraceLimits()``).
+    model : System, optional
+        The nominal model (e.g. :func:`nanostage.load_model`), in place of the manifest's
+        ``model.preset`` or model file; the manifest's overrides, free parameters, bounds,
+        travel and controller gains apply to it.
 
     Returns
     -------
@@ -908,7 +965,7 @@ def load_manifest(
     ManifestError
         Naming the manifest file and the key (and the line of a TOML syntax error).
     """
-    return _load(path, "diagnose", trace_root, limits)
+    return _load(path, "diagnose", trace_root, limits, model)
 
 
 def load_prediction_manifest(
@@ -916,6 +973,7 @@ def load_prediction_manifest(
     *,
     trace_root: str | Path | None = None,
     limits: TraceLimits | None = None,
+    model: System | None = None,
 ) -> Manifest:
     """Load and validate a ``nanostage predict`` manifest: the schema of
     :func:`load_manifest` without the diagnosis keys (``model.free``, ``model.bounds``,
@@ -924,7 +982,7 @@ def load_prediction_manifest(
     names that are safe, unique file names (:func:`nanostage.output.check_file_stems`).
     Parameters and errors as in :func:`load_manifest`.
     """
-    return _load(path, "predict", trace_root, limits)
+    return _load(path, "predict", trace_root, limits, model)
 
 
 def _load(
@@ -932,6 +990,7 @@ def _load(
     purpose: Purpose,
     trace_root: str | Path | None,
     limits: TraceLimits | None,
+    model: System | None = None,
 ) -> Manifest:
     p = Path(path).resolve()
     if limits is None:
@@ -967,11 +1026,17 @@ def _load(
             raise ctx.err(k, f"unknown table{hint}; valid: {', '.join(top)}")
     if "model" not in data:
         raise ctx.err("model", 'missing [model] table (at least: preset = "seed")')
-    model, system = _parse_model(ctx, data["model"], p.parent)
+    if model is not None and not isinstance(model, System):
+        raise ManifestError(
+            f"model = {model!r} is invalid: expected a nanostage.System (e.g. "
+            "nanostage.load_model(path))",
+            file=str(path),
+        )
+    model_spec, system = _parse_model(ctx, data["model"], p.parent, model)
     have = {f.name for f in dataclasses.fields(system.controller)}
     default_kind = next(
         (k for k, g in CONTROLLER_GAINS.items() if set(g) <= have),
-        PRESET_CONTROLLER_KIND.get(model.preset, "fpga_pid"),
+        PRESET_CONTROLLER_KIND.get(model_spec.preset or "", "fpga_pid"),
     )
     controller = _parse_controller(
         ctx, data.get("controller", {}), "controller", None, default_kind, system
@@ -1014,7 +1079,7 @@ def _load(
         raise ctx.err("experiment", 'no experiment has role = "train"')
     return Manifest(
         path=p,
-        model=model,
+        model=model_spec,
         controller=controller,
         diagnosis=diagnosis,
         experiment_specs=tuple(specs),

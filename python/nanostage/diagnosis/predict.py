@@ -6,8 +6,9 @@ same code, :func:`nanostage.diagnosis.manifest.load_prediction_manifest`) withou
 diagnosis keys::
 
     [model]
-    preset = "emps"                      # a name in nanostage.presets.PRESETS
-    file = "model.toml"                  # optional: overrides from a file
+    preset = "emps"                      # a name in nanostage.presets.PRESETS, or
+    # file = "axis.model.toml"           #   a model file (docs/model-file.md) in its place
+    file = "model.toml"                  # optional with a preset: overrides from a file
     travel_m = 0.5                       # optional: the axis travel, m (default: the preset's)
     [model.overrides]                    # identified values (dotted paths into the System)
     "plant.mass_kg" = 94.8
@@ -67,6 +68,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ..config import System
 from ..output import OutputError, check_output_dir, staged_output, write_json
 from ..simulate import simulate
 from .manifest import (
@@ -139,6 +141,7 @@ def predict(
     *,
     trace_root: str | Path | None = None,
     limits: TraceLimits | None = None,
+    model: System | None = None,
 ) -> dict[str, Any]:
     """Run every experiment of the manifest; returns (and writes) the summary.
 
@@ -153,6 +156,9 @@ def predict(
         manifest's folder.
     limits : TraceLimits, optional
         Size limits; default ``TraceLimits(max_samples_total=PREDICTION_MAX_SAMPLES_TOTAL)``.
+    model : System, optional
+        The nominal model (e.g. :func:`nanostage.load_model`) in place of the manifest's
+        preset or model file; the manifest's overrides and controller gains apply to it.
 
     Returns
     -------
@@ -168,7 +174,10 @@ def predict(
     path = Path(manifest)
     try:
         m = load_prediction_manifest(
-            path, trace_root=trace_root, limits=_default_limits() if limits is None else limits
+            path,
+            trace_root=trace_root,
+            limits=_default_limits() if limits is None else limits,
+            model=model,
         )
     except ManifestError as exc:
         raise PredictError(str(exc)) from exc
