@@ -651,6 +651,24 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
         ns.presets.seed(1e-3), effects=Effects(motor_friction=FrictionModifiers(asymmetry=0.3))
     )
     assert model_gap(m, truth)["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
+    # The model file of the selected model: loaded and simulated on the validation
+    # experiments, it gives gap_after to the last bit; it carries the selected effects.
+    assert r["model_file"] == "model.toml"
+    doc = ns.load_model_file(tmp_path / "out" / "model.toml")
+    assert doc.system == d.model
+    assert model_gap(m, doc.system)["total_rms_m"] == r["gap_after"]["total_rms_m"]
+    assert doc.provenance["selected_effects"] == r["selected"]
+    assert doc.provenance["gap_after_rms_m"] == r["gap_after"]["total_rms_m"]
+    assert doc.provenance["gap_before_rms_m"] == r["gap_before"]["total_rms_m"]
+    assert doc.provenance["command"] == "nanostage diagnose"
+    assert doc.provenance["manifest"] == str(m)
+    asym = doc.identified["effects.motor_friction.asymmetry"]
+    assert doc.system.effects.motor_friction.asymmetry == pytest.approx(0.3, abs=0.08)
+    assert asym.std_error is not None and asym.std_error > 0
+    assert (asym.lower, asym.upper) == (-0.6, 0.6)
+    for path, par in r["selected_model_parameters"].items():
+        assert get_path(doc.system, path) == par["value"]
+        assert doc.identified[path].std_error == par["std_error"]
     # Cross-fit: every validation experiment judged once, by models that never saw it.
     cf = r["crossfit"]
     val_names = r["folds"][0]["validate"]
@@ -926,14 +944,21 @@ def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None
     """No effect, none called. The candidates fitted two at a time (the default) give the
     report of fitting them one at a time, to the last bit."""
     m = _case(tmp_path, Effects(), seed=4)
-    d = diagnose(m, None, settings=FAST, progress=False)
+    d = diagnose(m, tmp_path / "out", settings=FAST, progress=False, figures=False)
     assert FAST.parallel_candidates == 2
     assert d.report["selected"] == [] and d.report["crossfit"] is None
+    # Nothing selected: the model file is the nominal model as calibrated, the one behind
+    # gap_after (which then equals gap_before).
+    doc = ns.load_model_file(tmp_path / "out" / "model.toml")
+    assert doc.provenance["selected_effects"] == []
+    assert doc.system.effects == Effects()
+    assert model_gap(m, doc.system)["total_rms_m"] == d.report["gap_after"]["total_rms_m"]
+    assert d.report["gap_after"]["total_rms_m"] == d.report["gap_before"]["total_rms_m"]
     assert all(not c["significant"] for c in d.report["candidates"])
     one = diagnose(m, None, settings=dc.replace(FAST, parallel_candidates=1), progress=False)
     # Bookkeeping aside (time, and how many simulations were looked up: two candidates
     # fitted at once may both simulate a pair neither has stored yet).
-    book = {"timing_s", "simulations"}
+    book = {"timing_s", "simulations", "model_file"}
     assert {k: v for k, v in one.report.items() if k not in book} == {
         k: v for k, v in d.report.items() if k not in book
     }

@@ -510,3 +510,47 @@ def test_main_prints_tables(emps: EmpsData, capsys: pytest.CaptureFixture[str]) 
 def test_main_reports_missing_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([str(tmp_path / "none.mat")]) == 1
     assert "none.mat" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# The study's model file
+# --------------------------------------------------------------------------------------
+
+
+def test_emps_study_writes_the_identified_model(
+    emps: EmpsData, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``nanostage emps`` writes the output-error model as ``model.toml``: it loads to the
+    identified system bit for bit, with the fit's standard errors, its bounds and the data
+    file as provenance."""
+    import json
+
+    from nanostage import load_model
+    from nanostage.model_file import load_model_file
+    from nanostage.studies import emps_study as study
+
+    fits: list[study.OutputErrorFit] = []
+    real_fit = study.output_error_fit
+
+    def recording_fit(data: EmpsData) -> study.OutputErrorFit:
+        fit = real_fit(data)
+        fits.append(fit)
+        return fit
+
+    monkeypatch.setattr(study, "output_error_fit", recording_fit)
+    out = tmp_path / "emps"
+    results = study.emps_study(out, mat_path=str(EMPS_MAT))
+    assert results["model_file"] == "model.toml"
+    assert json.loads((out / "emps.json").read_text(encoding="utf-8"))["model_file"] == "model.toml"
+    (fit,) = fits
+    assert load_model(out / "model.toml") == fit.system
+    doc = load_model_file(out / "model.toml")
+    assert doc.provenance["command"] == "nanostage emps"
+    assert doc.provenance["data"] == str(EMPS_MAT)
+    assert doc.provenance["evaluations"] == fit.n_evaluations
+    assert doc.provenance["cost"] == fit.cost
+    assert doc.provenance["relative_error"] == results["output_error"]["yardstick"]
+    assert set(doc.identified) == set(fit.values)
+    for name, lo, hi in study.OE_PARAMETERS:
+        ident = doc.identified[name]
+        assert (ident.std_error, ident.lower, ident.upper) == (fit.std_errors[name], lo, hi)

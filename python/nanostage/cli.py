@@ -253,7 +253,8 @@ def _diagnose(args: argparse.Namespace) -> int:
     print(
         f"validation gap {before * 1e9:.0f} nm → {after * 1e9:.0f} nm with "
         f"{', '.join(r['selected']) or 'no effect'} (noise floor "
-        f"{r['noise_floor_rms_m'] * 1e9:.0f} nm); report in {Path(args.out) / 'report.md'}"
+        f"{r['noise_floor_rms_m'] * 1e9:.0f} nm); report in {Path(args.out) / 'report.md'}, "
+        f"model in {Path(args.out) / 'model.toml'}"
     )
     return EXIT_OK
 
@@ -329,7 +330,7 @@ def _emps(args: argparse.Namespace) -> int:
     print("relative error ‖measured − simulated‖/‖measured‖  position  velocity  force")
     for label, y in rows:
         print(f"{label:44s} {y['position']:8.4%} {y['velocity']:8.3%} {y['force']:7.2%}")
-    print(_wrote(args.out, ["emps.json"]))
+    print(_wrote(args.out, ["emps.json", "model.toml"]))
     return EXIT_OK
 
 

@@ -578,6 +578,15 @@ def markdown_report(
                 "fit's Jacobian, inflated for correlated residuals).\n"
             )
             out.append(_evidence(evidence))
+    model_file = report.get("model_file")
+    if isinstance(model_file, str):
+        out.append("## Model file\n")
+        out.append(
+            f"`{_md_escape(model_file)}`: the selected model (the nominal parameters as "
+            "refitted with the selected effects, and the effects at their fitted values), "
+            "the model behind the gap after; load it with `nanostage.load_model` or pass it "
+            "as `--model` (docs/model-file.md).\n"
+        )
     if isinstance(report.get("advice"), list | tuple):
         out.append("## Experiment advice\n")
         out.append(_advice(report["advice"]))
@@ -721,6 +730,7 @@ def markdown_report(
             )
         )
     known = {
+        "model_file",
         "gap_before",
         "gap_after",
         "gap_best_single",

@@ -13,6 +13,10 @@ The report (``report.json``; schema in docs/diagnosis.md) has at least
     the effects kept by forward selection (possibly empty);
 ``gap_after``
     the validation gap with the selected effects (same form as ``gap_before``);
+``model_file``
+    with an output folder: ``model.toml``, the model file (docs/model-file.md) of the
+    selected model, the one behind ``gap_after`` (with one fold, simulating it on the
+    validation experiments gives ``gap_after`` to the last bit);
 
 plus ``indistinguishable`` (selected effect → candidates the validation data cannot tell
 from it), ``crossfit`` (the shrink when each validation experiment is judged by the nominal
@@ -31,10 +35,12 @@ from typing import Any
 
 import numpy as np
 
-from ..config import System, get_path, replace_paths
+from .._core import ConfigError, __version__
+from ..config import System, field_paths, get_path, replace_paths
 from ..experiment import Experiment
+from ..model_file import IdentifiedParameter, save_model
 from ..output import check_output_dir, staged_output
-from .candidates import CANDIDATES, Param, applicable_candidates
+from .candidates import CANDIDATES, Candidate, Param, applicable_candidates
 from .fit import Fit
 from .gap import analyse_gap
 from .loop import crossfit_models, diagnose_experiments
@@ -47,6 +53,7 @@ from .settings import DiagnosisSettings, print_progress
 
 __all__ = [
     "DISTINGUISHING_EXPERIMENT",
+    "MODEL_FILE",
     "Diagnosis",
     "diagnose",
     "experiment_advice",
@@ -89,6 +96,10 @@ DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
     "command (as in the EMPS validation run): a delay shifts the response, a flexibility "
     "filters it and rings at its resonance",
 }
+
+
+#: The model file ``diagnose`` writes into its output folder.
+MODEL_FILE = "model.toml"
 
 
 def _moves(e: Experiment) -> list[tuple[int, float, float]]:
@@ -374,10 +385,80 @@ def diagnose(
             }
             for e, s in zip(val, sims, strict=True)
         ]
+        report["model_file"] = MODEL_FILE
         with staged_output(out_dir, "diagnose") as folder:
             write_report(report, folder, gap_experiments=gap_exps, figures=figures)
+            save_model(
+                out["final"].system,
+                folder / MODEL_FILE,
+                provenance=_model_provenance(report, len(folds)),
+                identified=_identified(setup, out),
+            )
         written = Path(out_dir)
     return Diagnosis(report=report, out_dir=written, model=out["final"].system)
+
+
+def _model_provenance(report: Mapping[str, Any], n_folds: int) -> dict[str, Any]:
+    """The ``[provenance]`` of the diagnosis's model file."""
+    prov: dict[str, Any] = {
+        "command": "nanostage diagnose",
+        "nanostage_version": __version__,
+        "manifest": str(report["manifest"]),
+        "selected_effects": list(report["selected"]),
+        "gap_before_rms_m": float(report["gap_before"]["total_rms_m"]),
+        "gap_after_rms_m": float(report["gap_after"]["total_rms_m"]),
+        "folds": n_folds,
+    }
+    if n_folds > 1:
+        prov["note"] = (
+            f"the fit of the first of {n_folds} folds; gap_after judges each fold's "
+            "validation experiments by that fold's own fit"
+        )
+    return prov
+
+
+def _identified(setup: _Setup, out: Mapping[str, Any]) -> dict[str, IdentifiedParameter]:
+    """Standard error and bounds of the selected model's fitted parameters, by dotted path:
+    the free nominal parameters (refitted with the selected effects) and the continuous
+    parameters of the selected effects (from the round that selected each)."""
+    final: Fit = out["final"]
+    ident: dict[str, IdentifiedParameter] = {}
+    for path, p in setup.free:
+        ident[path] = IdentifiedParameter(
+            std_error=final.std_errors.get(path), lower=p.lower, upper=p.upper
+        )
+    rounds: Sequence[Sequence[CandidateResult]] = out["rounds"]
+    for rnd, (cand, values) in zip(rounds, out["selected_effects"], strict=False):
+        if cand.discrete:
+            continue
+        won = next((r for r in rnd if r.effect == cand.name), None)
+        paths = _effect_paths(cand, values, final.system)
+        for q, where in zip(cand.params, paths, strict=True):
+            if where is None or where in ident:
+                continue
+            se = won.fit.std_errors.get(f"{cand.name}.{q.name}") if won is not None else None
+            ident[where] = IdentifiedParameter(std_error=se, lower=q.lower, upper=q.upper)
+    return ident
+
+
+def _effect_paths(cand: Candidate, values: Sequence[float], system: System) -> list[str | None]:
+    """The dotted path of the model that holds each parameter of an applied effect (None
+    where it is not one field holding the value as fitted): the one field that changes
+    when that parameter alone is moved to one of its bounds."""
+    numeric = field_paths(system)
+    out: list[str | None] = []
+    for i, p in enumerate(cand.params):
+        alt = list(values)
+        alt[i] = p.lower if values[i] != p.lower else p.upper
+        try:
+            moved = cand.apply(system, alt)
+            changed = [q for q in numeric if repr(get_path(moved, q)) != repr(get_path(system, q))]
+        except (ValueError, TypeError, KeyError, AttributeError, ConfigError):
+            out.append(None)
+            continue
+        hit = len(changed) == 1 and get_path(system, changed[0]) == values[i]
+        out.append(changed[0] if hit else None)
+    return out
 
 
 def _is_coulomb_viscous(system: System, parent: str) -> bool:

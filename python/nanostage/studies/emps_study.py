@@ -17,13 +17,16 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from .. import presets
+from .._core import __version__
 from ..config import ForceDrivePlant, System, get_path, replace_paths
 from ..experiment import Experiment
+from ..model_file import IdentifiedParameter, save_model
 from ..output import check_output_dir, staged_output, write_json
 from ..simulate import Trace, simulate
 from .emps import EmpsData, controller_fit, emps_velocity_force, load_emps, relative_error
 
 __all__ = [
+    "MODEL_FILE",
     "OutputErrorFit",
     "Yardstick",
     "check_study_data",
@@ -33,6 +36,9 @@ __all__ = [
 ]
 
 FloatArray = npt.NDArray[np.float64]
+
+#: The model file of the identified model that ``emps_study`` writes into its folder.
+MODEL_FILE = "model.toml"
 
 #: Parameters the output-error identification fits, with their starting bounds.
 OE_PARAMETERS: tuple[tuple[str, float, float], ...] = (
@@ -217,7 +223,9 @@ def check_study_data(data: EmpsData) -> None:
 
 def emps_study(out_dir: str | Path, *, mat_path: str | None = None) -> dict[str, Any]:
     """The EMPS study: authors' models and the output-error model against the data
-    (yardstick), written to ``out_dir/emps.json``.
+    (yardstick), written to ``out_dir/emps.json``; the identified (output-error) model
+    to ``out_dir/model.toml`` (docs/model-file.md), with the standard errors and bounds of
+    its fitted parameters and the data file and fit statistics as provenance.
 
     ``out_dir`` and the data (:func:`~nanostage.studies.emps.load_emps`, :func:`check_study_data`)
     are checked before any work; the folder is written whole or not at all
@@ -230,14 +238,36 @@ def emps_study(out_dir: str | Path, *, mat_path: str | None = None) -> dict[str,
     results["authors_symmetric"] = yardstick(presets.emps(), data).to_dict()
     results["authors_asymmetric"] = yardstick(presets.emps(asymmetric=True), data).to_dict()
     oe = output_error_fit(data)
+    oe_yardstick = yardstick(oe.system, data).to_dict()
     results["output_error"] = {
         "values": oe.values,
         "std_errors": oe.std_errors,
-        "yardstick": yardstick(oe.system, data).to_dict(),
+        "yardstick": oe_yardstick,
         "evaluations": oe.n_evaluations,
     }
+    results["model_file"] = MODEL_FILE
+    bounds = {name: (lo, hi) for name, lo, hi in OE_PARAMETERS}
     with staged_output(out_dir, "emps") as folder:
         write_json(results, folder / "emps.json", indent=1)
+        save_model(
+            oe.system,
+            folder / MODEL_FILE,
+            provenance={
+                "command": "nanostage emps",
+                "nanostage_version": __version__,
+                "data": str(data.experiment.source),
+                "method": "output-error identification by closed-loop simulation",
+                "cost": oe.cost,
+                "evaluations": oe.n_evaluations,
+                "relative_error": oe_yardstick,
+            },
+            identified={
+                name: IdentifiedParameter(
+                    std_error=oe.std_errors[name], lower=bounds[name][0], upper=bounds[name][1]
+                )
+                for name in oe.values
+            },
+        )
     return results
 
 
