@@ -15,6 +15,7 @@ Conventions of every command:
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import signal
 import sys
 import threading
@@ -159,9 +160,17 @@ def _reproduce(args: argparse.Namespace) -> int:
         )
         check_threads(args.threads)
     check_output_dir(args.out)
-    names = ["summary.json"] if args.no_plot else ["summary.json", "steps.png"]
+    plot = not args.no_plot
+    if plot and importlib.util.find_spec("matplotlib") is None:
+        plot = False
+        print(
+            "warning: matplotlib is not installed; steps.png not written (pip install "
+            '"nanostage[plot]" for the figures)',
+            file=sys.stderr,
+        )
+    names = ["summary.json", "steps.png"] if plot else ["summary.json"]
     with staged_output(args.out, "reproduce") as folder:
-        summary = reproduce_into(folder, plot=not args.no_plot, model=model)
+        summary = reproduce_into(folder, plot=plot, model=model)
         print(summary["table_markdown"])
         slew = summary["slew_at_voltage_limit"]
         assert isinstance(slew, dict)

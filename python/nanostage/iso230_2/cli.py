@@ -128,5 +128,9 @@ def run_cli(args: argparse.Namespace) -> int:
         if f is not None:
             print(f"wrote {out / f.name}")
     if staged.png is None:
-        print("warning: matplotlib is not installed; no plot written", file=sys.stderr)
+        print(
+            'warning: matplotlib is not installed; no plot written (pip install "nanostage[plot]" '
+            "for the figures)",
+            file=sys.stderr,
+        )
     return 0
