@@ -8,7 +8,7 @@ reference move of the cycle, measured approaches and overrun moves) and the scal
 the peak RSS of a fresh process running N and 4·N trials (flat: only the measured positions
 are kept per trial).
 
-Goals (issue 4): ≥ 10 000 moves/s on the 2-core machine, scaling ≥ 1.8×, memory flat.
+Goals: ≥ 10 000 moves/s on the 2-core machine, scaling ≥ 1.8×, memory flat.
 
     python benches/campaign_speed.py [--trials 1000] [--repeats 3]
 """

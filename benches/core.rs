@@ -50,7 +50,7 @@ fn closed_loop_trial(c: &mut Criterion) {
     });
 }
 
-/// The same 1-s trial with the effect library's heavy components on (issue 3 speed goal:
+/// The same 1-s trial with the effect library's heavy components on (speed goal:
 /// at most 3× the plain seed trial): GMS with 6 elements on the table, gearhead backlash
 /// (20 µm) and a two-mass drive train; and each alone, and the component plant with every
 /// effect off (the general path's own overhead).

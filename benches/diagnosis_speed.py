@@ -4,7 +4,7 @@ For each hidden effect (default: every one the blind benchmark draws) it writes 
 case of the 10 experiments of `nanostage.diagnosis.benchmark.SPEED_DESIGN` (the blind
 benchmark's truth, noise and stochastic friction), runs `nanostage.diagnose` on the files
 with the default settings (all 17 candidates, forward selection) and prints the wall time,
-then the median and the slowest case. The goal (issue 5) is ≤ 60 s per diagnosis on the
+then the median and the slowest case. The goal is ≤ 60 s per diagnosis on the
 project's 2-core machine. Run it alone: the machine is shared and the times are wall times.
 
     python benches/diagnosis_speed.py [--seed 1] [--hidden none backlash ...] [--out DIR]

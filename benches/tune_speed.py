@@ -3,7 +3,7 @@
 Runs `nanostage.tune.tune` on the seed axis (100 µm step, Table 1 start, per-trial friction
 level spread 0.2, `Objective.mix()`, the default search budget) `--repeats` times and prints
 the median wall time, the candidates evaluated, and the simulated trial throughput. The goal
-(issue 7) is ≤ 2 minutes on the project's 2-core machine.
+is ≤ 2 minutes on the project's 2-core machine.
 
     python benches/tune_speed.py [--step-um 100] [--trials 200] [--repeats 3] [--threads N]
 """

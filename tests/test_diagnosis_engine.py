@@ -1,6 +1,6 @@
 """The diagnosis engine: the gap metric, the noise floor, significance, and small end-to-end
 runs on synthetic data with a known hidden effect (the full blind benchmark is
-``nanostage diagnose-benchmark``; see README)."""
+``nanostage diagnose-benchmark``; see docs/benchmarks.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Physics of each effect of the library (issue 3, "Tests"): every test asserts a physical
+"""Physics of each effect of the library (docs/effects.md): every test asserts a physical
 fact of one component that would fail if its equations were wrong, not just that it runs.
 
 Friction components are driven along prescribed motions (``friction_response``, states start

@@ -79,7 +79,7 @@ def test_figures_match_a_full_trace_computed_by_hand() -> None:
         assert m.overshoot_m == pytest.approx(reduce(hand["over"]), abs=1e-15)
         assert m.final_error_m == pytest.approx(reduce(hand["final"]), abs=1e-15)
         assert m.objective == pytest.approx(m.settling_time_s, rel=1e-12)
-    # Table 1 at 100 µm overshoots by about 28 µm (README) and settles within the window.
+    # Table 1 at 100 µm overshoots by about 28 µm and settles within the window.
     assert 20e-6 < max(hand["over"]) < 35e-6
     # Identical trials: pooled A↑ is 4·s over identical final positions per run = the spread
     # of the repeats alone; it is finite and below one count plus the overshoot scale.

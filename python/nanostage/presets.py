@@ -145,7 +145,7 @@ SEED_PROVENANCE: dict[str, Provenance] = {
     ),
     "controller.output_unit_v": _P(
         unit="V",
-        source="chosen: 0.1 mV per unit (≡ e in µm, u in mV); with 1 mV or 1 DAC LSB the Table 1 gains limit-cycle (DOMAIN §2.3; checked with this model, see README)",
+        source="chosen: 0.1 mV per unit (≡ e in µm, u in mV); with 1 mV or 1 DAC LSB the Table 1 gains limit-cycle (DOMAIN §2.3; checked with this model, see README, Conventions)",
         confidence="I",
     ),
     "controller.dac_lsb_v": _P(

@@ -1,5 +1,5 @@
 //! The seed axis (Kamenar, Zelenika et al.) as numbers. Units, sources and confidence of
-//! every value are tabulated in `python/nanostage/presets.py` and the README; the Python
+//! every value are tabulated in `python/nanostage/presets.py`; the Python
 //! preset reads its numbers from here so that there is one source.
 use crate::control::{AntiWindup, Encoder, FxpFormat, OutputStage, Overflow, PidConfig, Rounding};
 use crate::integrate::IntegratorOptions;

@@ -111,7 +111,7 @@ HIDDEN_EFFECTS: Final[tuple[str, ...]] = (
     "position_random_friction",
 )
 
-#: Effects of issue 25's list not written in this family.
+#: Hidden effects of the benchmark list not written in this family yet.
 NOT_YET_WRITTEN: Final[tuple[str, ...]] = (
     "computation_delay",
     "presliding_gms",
