@@ -49,6 +49,7 @@ from ..experiment import Experiment
 from ..output import check_output_dir, staged_output, write_json
 from ..simulate import simulate
 from .candidates import motor_static_force_n
+from .case_manifest import case_manifest_head
 from .manifest import load_manifest
 from .run import diagnose, model_gap
 from .settings import DiagnosisSettings
@@ -354,22 +355,7 @@ def generate_case(
     # Coulomb torques (the truth perturbs all three). Where the bounds overlap, a Coulomb
     # torque above the static one is an invalid model, which the fit treats as a bad fit.
     tc0, ts0 = mf.coulomb_torque_nm, mf.static_torque_nm
-    lines = [
-        "[model]",
-        'preset = "seed"',
-        'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.static_torque_nm",',
-        '        "plant.motor_friction.coulomb_torque_nm"]',
-        "",
-        "[model.bounds]",
-        f'"plant.dahl.coulomb_force_n" = [{0.6 * fc0}, {1.5 * fc0}]',
-        f'"plant.motor_friction.static_torque_nm" = [{0.8 * ts0}, {1.5 * ts0}]',
-        f'"plant.motor_friction.coulomb_torque_nm" = [{0.7 * tc0}, {1.3 * tc0}]',
-        "",
-        "[diagnosis]",
-        'candidates = "all"',
-        f"seed = {seed}",
-        "",
-    ]
+    lines = case_manifest_head(fc0, ts0, tc0, seed)
     q = truth.encoder.count_m
     for i, (steps, x0, dwells, role, gains, hold) in enumerate(design):
         ref = design_reference(steps, x0, dwells, hold_s=hold)

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from ..output import write_json
+from .case_manifest import case_manifest_head
 
 __all__ = [
     "HIDDEN_EFFECTS",
@@ -659,22 +660,7 @@ def write_case(
     out.mkdir(parents=True, exist_ok=True)
     fc0 = SEED["table_coulomb_force_n"]
     ts0, tc0 = SEED["static_torque_nm"], SEED["coulomb_torque_nm"]
-    lines = [
-        "[model]",
-        'preset = "seed"',
-        'free = ["plant.dahl.coulomb_force_n", "plant.motor_friction.static_torque_nm",',
-        '        "plant.motor_friction.coulomb_torque_nm"]',
-        "",
-        "[model.bounds]",
-        f'"plant.dahl.coulomb_force_n" = [{0.6 * fc0}, {1.5 * fc0}]',
-        f'"plant.motor_friction.static_torque_nm" = [{0.8 * ts0}, {1.5 * ts0}]',
-        f'"plant.motor_friction.coulomb_torque_nm" = [{0.7 * tc0}, {1.3 * tc0}]',
-        "",
-        "[diagnosis]",
-        'candidates = "all"',
-        f"seed = {seed}",
-        "",
-    ]
+    lines = case_manifest_head(fc0, ts0, tc0, seed)
     for i, e in enumerate(exps):
         tr = simulate_closed_loop(truth, e.reference_m, e.gains, seed * 1000 + i)
         data = np.column_stack([tr["time_s"], e.reference_m, tr["position_m"], tr["command_v"]])
