@@ -39,3 +39,28 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+def write_emps_mat(path: Path, **overrides: object) -> Path:
+    """A small EMPS-format .mat file (50 samples, 1 ms) with variables replaced, or removed
+    where the override is None."""
+    import numpy as np
+    from scipy.io import savemat
+
+    n = 50
+    mat: dict[str, object] = {
+        "t": (np.arange(n) * 1e-3)[:, None],
+        "qg": np.linspace(0.0, 1e-3, n)[:, None],
+        "qm": np.linspace(0.0, 1e-3, n)[:, None],
+        "vir": np.zeros((n, 1)),
+        "gtau": np.array([[35.0]]),
+        "kp": np.array([[160.0]]),
+        "kv": np.array([[243.0]]),
+    }
+    for k, v in overrides.items():
+        if v is None:
+            del mat[k]
+        else:
+            mat[k] = v
+    savemat(str(path), mat)
+    return path

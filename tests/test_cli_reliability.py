@@ -35,7 +35,7 @@ from nanostage.output import (
 )
 from nanostage.studies import emps, emps_study, paper_campaigns, reproduce, table1
 
-from conftest import SHARED
+from conftest import SHARED, write_emps_mat
 
 EMPS_MAT = SHARED / "data" / "emps" / "DATA_EMPS.mat"
 
@@ -686,40 +686,21 @@ def test_emps_real_data_pass_the_input_checks() -> None:
 
 
 def test_emps_wrong_mat_content_is_an_error(tmp_path: Path) -> None:
-    from scipy.io import savemat
-
-    n = 50
-    base: dict[str, Any] = {
-        "t": (np.arange(n) * 1e-3)[:, None],
-        "qg": np.linspace(0.0, 1e-3, n)[:, None],
-        "qm": np.linspace(0.0, 1e-3, n)[:, None],
-        "vir": np.zeros((n, 1)),
-        "gtau": np.array([[35.0]]),
-        "kp": np.array([[160.0]]),
-        "kv": np.array([[243.0]]),
-    }
-    cases = [
+    one = {k: np.zeros((1, 1)) for k in ("t", "qg", "qm", "vir")}
+    cases: list[tuple[dict[str, object], str]] = [
         ({"qm": np.array(["abc"])}, "variable 'qm' is not numeric"),
         ({"kp": np.array(["fast"])}, "variable 'kp' should be one finite number"),
-        ({k: v[:1] for k, v in base.items() if k in ("t", "qg", "qm", "vir")}, "1 samples"),
-        ({"qm": np.linspace(0.0, 1.0, n)[:, None]}, "qm spans 1 but qg spans 0.001"),
+        (one, "1 samples"),
+        ({"qm": np.linspace(0.0, 1.0, 50)[:, None]}, "qm spans 1 but qg spans 0.001"),
     ]
     for i, (override, fragment) in enumerate(cases):
-        path = tmp_path / f"w{i}.mat"
-        savemat(str(path), {**base, **override})
+        path = write_emps_mat(tmp_path / f"w{i}.mat", **override)
         with pytest.raises(ValueError, match=fragment):
             emps.load_emps(path)
     # Too short for the study, though loadable.
-    data = emps.load_emps(_write(tmp_path / "short.mat", base))
+    data = emps.load_emps(write_emps_mat(tmp_path / "short.mat"))
     with pytest.raises(ValueError, match="at least 100"):
         emps_study.check_study_data(data)
-
-
-def _write(path: Path, mat: dict[str, Any]) -> Path:
-    from scipy.io import savemat
-
-    savemat(str(path), mat)
-    return path
 
 
 # --------------------------------------------------------------------------------------------

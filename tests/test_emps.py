@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
-from scipy.io import savemat
 
 from nanostage.experiment import Experiment
 from nanostage.studies.emps import (
@@ -30,7 +29,7 @@ from nanostage.studies.emps import (
     relative_error,
 )
 
-from conftest import SHARED
+from conftest import SHARED, write_emps_mat
 
 EMPS_MAT = SHARED / "data" / "emps" / "DATA_EMPS.mat"
 DT = 1e-3
@@ -72,28 +71,8 @@ def test_load_emps_channels_and_constants(emps: EmpsData) -> None:
         assert arr.dtype == np.float64 and arr.ndim == 1
 
 
-def _write_mat(path: Path, **overrides: object) -> Path:
-    n = 50
-    mat: dict[str, object] = {
-        "t": (np.arange(n) * 1e-3)[:, None],
-        "qg": np.linspace(0.0, 1e-3, n)[:, None],
-        "qm": np.linspace(0.0, 1e-3, n)[:, None],
-        "vir": np.zeros((n, 1)),
-        "gtau": np.array([[35.0]]),
-        "kp": np.array([[160.0]]),
-        "kv": np.array([[243.0]]),
-    }
-    for k, v in overrides.items():
-        if v is None:
-            del mat[k]
-        else:
-            mat[k] = v
-    savemat(str(path), mat)
-    return path
-
-
 def test_load_emps_small_file(tmp_path: Path) -> None:
-    data = load_emps(_write_mat(tmp_path / "ok.mat"))
+    data = load_emps(write_emps_mat(tmp_path / "ok.mat"))
     assert data.experiment.n_samples == 50
     assert data.kv_v_s_per_m == 243.0
     assert data.experiment.name == "ok"
@@ -114,28 +93,28 @@ def test_load_emps_corrupt_file_names_path(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("name", ["t", "qg", "qm", "vir", "gtau", "kp", "kv"])
 def test_load_emps_missing_variable_named(tmp_path: Path, name: str) -> None:
-    path = _write_mat(tmp_path / "partial.mat", **{name: None})
+    path = write_emps_mat(tmp_path / "partial.mat", **{name: None})
     with pytest.raises(ValueError, match=rf"partial\.mat: variable '{name}' missing"):
         load_emps(path)
 
 
 def test_load_emps_rejects_bad_shapes_and_time(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="differ in length"):
-        load_emps(_write_mat(tmp_path / "a.mat", vir=np.zeros((49, 1))))
+        load_emps(write_emps_mat(tmp_path / "a.mat", vir=np.zeros((49, 1))))
     with pytest.raises(ValueError, match="'kp' should be one finite number"):
-        load_emps(_write_mat(tmp_path / "b.mat", kp=np.array([[1.0, 2.0]])))
+        load_emps(write_emps_mat(tmp_path / "b.mat", kp=np.array([[1.0, 2.0]])))
     with pytest.raises(ValueError, match="'qm' has shape"):
-        load_emps(_write_mat(tmp_path / "c.mat", qm=np.zeros((50, 2))))
+        load_emps(write_emps_mat(tmp_path / "c.mat", qm=np.zeros((50, 2))))
     with pytest.raises(ValueError, match="'t' is not sampled"):
-        load_emps(_write_mat(tmp_path / "d.mat", t=(np.arange(50) * 2e-3)[:, None]))
+        load_emps(write_emps_mat(tmp_path / "d.mat", t=(np.arange(50) * 2e-3)[:, None]))
     with pytest.raises(ValueError, match="'vir' has non-finite"):
-        load_emps(_write_mat(tmp_path / "e.mat", vir=np.full((50, 1), np.nan)))
+        load_emps(write_emps_mat(tmp_path / "e.mat", vir=np.full((50, 1), np.nan)))
 
 
 def test_default_path_and_env_override(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(EMPS_ENV_VAR, raising=False)
     assert default_emps_path().resolve() == EMPS_MAT.resolve()
-    target = _write_mat(tmp_path / "other.mat")
+    target = write_emps_mat(tmp_path / "other.mat")
     monkeypatch.setenv(EMPS_ENV_VAR, str(target))
     assert default_emps_path() == target
     assert load_emps().experiment.source == str(target)
