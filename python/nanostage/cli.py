@@ -72,6 +72,13 @@ def _signals() -> Iterator[None]:
             signal.signal(signal.SIGTERM, previous)
 
 
+def _log_line(msg: str) -> None:
+    """A progress line on stderr in one write, so that a signal handled between the text and
+    its newline (``print`` writes them separately) cannot glue the error line to it."""
+    sys.stderr.write(msg + "\n")
+    sys.stderr.flush()
+
+
 def _one_line(text: str) -> str:
     line = " ".join(str(text).split())
     return line if len(line) <= _MAX_MESSAGE else line[: _MAX_MESSAGE - 1] + "…"
@@ -185,7 +192,7 @@ def _reproduce(args: argparse.Namespace) -> int:
                 folder,
                 campaigns,
                 threads=args.threads,
-                log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+                log=None if args.quiet else _log_line,
                 model=model,
             )
             print()
@@ -386,7 +393,7 @@ def _tune(args: argparse.Namespace) -> int:
         maxiter=args.maxiter,
         threads=args.threads,
         progress=not args.quiet,
-        log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)),
+        log=None if args.quiet else _log_line,
         model=model,
     )
     files = write_tune_report(args.out, report, plot=not args.no_plot)

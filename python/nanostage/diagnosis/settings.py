@@ -146,4 +146,7 @@ def with_starts(
 
 def print_progress(msg: str, enabled: bool) -> None:
     if enabled:
-        print(msg, file=sys.stderr, flush=True)
+        # One write of the whole line: a signal handled between the text and its newline
+        # (print writes them separately) would glue the next message to this line.
+        sys.stderr.write(msg + "\n")
+        sys.stderr.flush()
