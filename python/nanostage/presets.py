@@ -1,12 +1,17 @@
-"""Presets: the seed axis of the paper, with each value's unit, source and confidence.
+"""Presets: the seed axis of the paper (with its Table 1 gains and each value's unit, source
+and confidence) and the EMPS axis.
 
-The numbers come from the Rust core (``_core.seed_values()``), so Rust benches/tests and
-Python use one set. Confidence tags follow DOMAIN.md: ``B`` stated in the seed paper,
+Each preset's numbers are written once, in a model file shipped with the package
+(``nanostage/model_files/seed.model.toml``, ``emps.model.toml``), read here with the model
+file loader (:func:`nanostage.model_file.parse_model`, parsed once per process) and by the
+Rust tests and benches. Confidence tags follow DOMAIN.md: ``B`` stated in the seed paper,
 ``I`` derived here (arithmetic shown), ``U`` uncertain planning value, ``K`` textbook.
 """
 
 from __future__ import annotations
 
+import functools
+import importlib.resources
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
@@ -14,24 +19,9 @@ from types import MappingProxyType
 from typing import Any, Final
 
 from . import _core
-from .config import (
-    BallScrew,
-    CascadeController,
-    DahlFriction,
-    Encoder,
-    ForceDrivePlant,
-    FpgaPid,
-    Fxp,
-    Gearhead,
-    IntegratorOptions,
-    Motor,
-    OutputStage,
-    Plant,
-    StribeckFriction,
-    System,
-    Table,
-)
-from .effects import Effects, StaticFrictionMap
+from .config import ForceDrivePlant, FpgaPid, Plant, System
+from .effects import StaticFrictionMap
+from .model_file import ModelDocument, ModelFileError, parse_model
 
 __all__ = [
     "PRESETS",
@@ -58,131 +48,82 @@ class Provenance:
     confidence: str
 
 
-_P = Provenance
-#: Unit, source and confidence of every seed value, keyed by dotted field path.
-SEED_PROVENANCE: dict[str, Provenance] = {
-    "plant.motor.resistance_ohm": _P(
-        unit="Ω", source="DOMAIN §4.1 (≈3.4 Ω recalled, 3–4 Ω)", confidence="U"
-    ),
-    "plant.motor.inductance_h": _P(
-        unit="H", source="DOMAIN §4.1, sister SR motors 70–110 µH", confidence="U"
-    ),
-    "plant.motor.torque_constant_nm_per_a": _P(
-        unit="N·m/A", source="DOMAIN §4.1: k_M = k_E in SI", confidence="I"
-    ),
-    "plant.motor.back_emf_v_s_per_rad": _P(
-        unit="V·s/rad", source="DOMAIN §4.1: ≈ U_N/n₀ = 6 V / 900.6 rad/s", confidence="I"
-    ),
-    "plant.motor.rotor_inertia_kg_m2": _P(
-        unit="kg·m²", source="DOMAIN §4.1: 0.8–1.2 g·cm²", confidence="U"
-    ),
-    "plant.motor.quasi_static_current": _P(
-        unit="-",
-        source="modelling choice: the electrical pole L/R ≈ 21 µs is integrated",
-        confidence="I",
-    ),
-    "plant.motor_friction.static_torque_nm": _P(
-        unit="N·m", source="assumed 1.2 × Coulomb torque (no datasheet value)", confidence="U"
-    ),
-    "plant.motor_friction.coulomb_torque_nm": _P(
-        unit="N·m", source="DOMAIN §4.1: friction torque MR ≈ 0.1 mN·m", confidence="U"
-    ),
-    "plant.motor_friction.viscous_nm_s_per_rad": _P(
-        unit="N·m·s/rad", source="DOMAIN §3.1: (k_M·I₀ − MR)/ω₀ with I₀ ≈ 0.018 A", confidence="U"
-    ),
-    "plant.motor_friction.stribeck_velocity_rad_per_s": _P(
-        unit="rad/s", source="assumed (≈ 0.1 mm/s at the table)", confidence="U"
-    ),
-    "plant.motor_friction.stribeck_exponent": _P(
-        unit="-", source="DOMAIN §3.1: δ = 2 common", confidence="K"
-    ),
-    "plant.gearhead.ratio": _P(unit="-", source="seed paper: 19:1", confidence="B"),
-    "plant.gearhead.efficiency": _P(
-        unit="-", source="DOMAIN §4.2: 2-stage planetary ≈ 0.8", confidence="U"
-    ),
-    "plant.screw.lead_m": _P(unit="m", source="seed paper: lead 2 mm", confidence="B"),
-    "plant.screw.efficiency": _P(unit="-", source="DOMAIN §4.4: practical ≈ 0.9", confidence="U"),
-    "plant.screw.inertia_kg_m2": _P(
-        unit="kg·m²", source="Ø6 × 100 mm steel shaft: m r²/2 ≈ 1e-7", confidence="I"
-    ),
-    "plant.table.mass_kg": _P(
-        unit="kg", source="DOMAIN §4.3: table/carriage ≲ 1 kg", confidence="U"
-    ),
-    "plant.table.external_force_n": _P(
-        unit="N", source="horizontal axis, no cable force modelled", confidence="U"
-    ),
-    "plant.dahl.coulomb_force_n": _P(
-        unit="N",
-        source="seed paper: Fc = 30.4 N (motor current at constant velocity)",
-        confidence="B",
-    ),
-    "plant.dahl.stiffness_n_per_m": _P(
-        unit="N/m",
-        source="seed paper prints σ = 75 'N/m'; only 75 N/µm is plausible (presliding Fc/σ ≈ 0.4 µm), DOMAIN §3.2",
-        confidence="I",
-    ),
-    "plant.dahl.exponent": _P(unit="-", source="seed paper: n = 1", confidence="B"),
-    "encoder.count_m": _P(
-        unit="m", source="seed paper: Heidenhain encoder, 100 nm resolution", confidence="B"
-    ),
-    "encoder.side": _P(
-        unit="-", source="seed paper: the linear encoder reads the table", confidence="B"
-    ),
-    "output_stage.amplifier_gain": _P(
-        unit="V/V", source="assumed unity-gain linear amplifier", confidence="U"
-    ),
-    "output_stage.amplifier_limit_v": _P(
-        unit="V", source="seed paper: motor nominal voltage 6 V", confidence="B"
-    ),
-    "controller.kp": _P(unit="output units/count", source="seed paper Table 1", confidence="B"),
-    "controller.ki": _P(
-        unit="output units/(count·sample)", source="seed paper Table 1", confidence="B"
-    ),
-    "controller.kd": _P(
-        unit="output units/count",
-        source="seed paper Table 1 (damping sign, DOMAIN §2.3)",
-        confidence="B",
-    ),
-    "controller.output_unit_v": _P(
-        unit="V",
-        source="chosen: 0.1 mV per unit (≡ e in µm, u in mV); with 1 mV or 1 DAC LSB the Table 1 gains limit-cycle (DOMAIN §2.3; checked with this model, see README, Conventions)",
-        confidence="I",
-    ),
-    "controller.dac_lsb_v": _P(
-        unit="V", source="16-bit ±10 V analog output: 20 V / 65536 (NI 9263)", confidence="K"
-    ),
-    "controller.output_min": _P(
-        unit="output units", source="−6 V / 0.1 mV: the amplifier limit", confidence="I"
-    ),
-    "controller.output_max": _P(
-        unit="output units", source="+6 V / 0.1 mV: the amplifier limit", confidence="I"
-    ),
-    "controller.anti_windup": _P(
-        unit="-",
-        source="conditional integration: without anti-windup the 10 mm step overshoots by mm (DOMAIN §2.3)",
-        confidence="U",
-    ),
-    "controller.clock_hz": _P(
-        unit="Hz", source="NI FPGA default 40 MHz top-level clock (DOMAIN §2.5)", confidence="K"
-    ),
-    "controller.ticks_per_sample": _P(
-        unit="ticks", source="T = 1 ms (seed paper) at 40 MHz", confidence="B"
-    ),
-    "controller.latency_ticks": _P(
-        unit="ticks",
-        source="schedule: latch 1 + error 1 + multiply 2 + integrate 1 + sum/saturate 2 + DAC scale 2 + AO write 1 = 10 ticks, plus ≈3 µs AO conversion (120 ticks)",
-        confidence="U",
-    ),
-    "controller.formats": _P(
-        unit="-",
-        source="custom FPGA PID (Kp = 450 does not fit NI's Q8.8 gains, DOMAIN §2.3): gains ⟨s,24,16⟩, counter ⟨s,32,32⟩ wrap, error ⟨s,32,32⟩, terms and integrator ⟨s,48,40⟩, output ⟨s,32,24⟩, DAC ⟨s,16,16⟩, all saturating, round half even",
-        confidence="U",
-    ),
-}
+_PACKAGE_DIR: Final = "model_files"
 
 
-def _fxp(d: dict[str, Any]) -> Fxp:
-    return Fxp(**d)
+@functools.cache
+def _document(name: str) -> ModelDocument:
+    """The shipped model file ``model_files/<name>.model.toml`` read whole (parsed once)."""
+    resource = importlib.resources.files(__package__).joinpath(_PACKAGE_DIR, f"{name}.model.toml")
+    text = resource.read_text(encoding="utf-8")
+    return parse_model(text, source=f"nanostage/{_PACKAGE_DIR}/{name}.model.toml")
+
+
+def _file_error(name: str, message: str) -> ModelFileError:
+    return ModelFileError(f"nanostage/{_PACKAGE_DIR}/{name}.model.toml: {message}")
+
+
+def _number(name: str, key: str, raw: Any) -> float:
+    if not isinstance(raw, int | float) or isinstance(raw, bool) or not math.isfinite(raw):
+        raise _file_error(name, f"{key} = {raw!r} is invalid: expected a finite number")
+    return float(raw)
+
+
+@functools.cache
+def _table1_rows() -> dict[float, tuple[float, float, float]]:
+    """Table 1 of the seed paper from the seed file: step size, m -> (Kp, Ki, Kd)."""
+    raw = _document("seed").provenance.get("table1_gains")
+    if not isinstance(raw, list) or not raw:
+        raise _file_error("seed", "provenance.table1_gains is missing: expected an array of tables")
+    rows: dict[float, tuple[float, float, float]] = {}
+    for i, row in enumerate(raw):
+        key = f"provenance.table1_gains[{i}]"
+        if not isinstance(row, dict) or sorted(row) != ["kd", "ki", "kp", "step_m"]:
+            raise _file_error("seed", f"{key} is invalid: expected a table of step_m, kp, ki, kd")
+        step = _number("seed", f"{key}.step_m", row["step_m"])
+        if not step > 0.0:
+            raise _file_error("seed", f"{key}.step_m = {step!r} is invalid: expected > 0 m")
+        kp, ki, kd = (_number("seed", f"{key}.{k}", row[k]) for k in ("kp", "ki", "kd"))
+        rows[step] = (kp, ki, kd)
+    return rows
+
+
+@functools.cache
+def _seed_system() -> System:
+    """The seed file's system (its controller has the 1 mm row of Table 1)."""
+    system = _document("seed").system
+    ctl = system.controller
+    assert isinstance(ctl, FpgaPid)
+    if (ctl.kp, ctl.ki, ctl.kd) != table1_gains(1e-3):
+        raise _file_error(
+            "seed",
+            f"controller gains (kp, ki, kd) = {(ctl.kp, ctl.ki, ctl.kd)} are not the 1 mm row "
+            f"of provenance.table1_gains {table1_gains(1e-3)}",
+        )
+    return system
+
+
+def _seed_provenance() -> dict[str, Provenance]:
+    raw = _document("seed").provenance.get("values", {})
+    out: dict[str, Provenance] = {}
+    for path, entry in raw.items():
+        if (
+            not isinstance(entry, dict)
+            or sorted(entry) != ["confidence", "source", "unit"]
+            or not all(isinstance(v, str) for v in entry.values())
+        ):
+            raise _file_error(
+                "seed",
+                f'provenance.values."{path}" is invalid: expected a table of the strings '
+                "unit, source, confidence",
+            )
+        out[path] = Provenance(**entry)
+    return out
+
+
+#: Unit, source and confidence of every seed value, keyed by dotted field path (the seed
+#: file's ``[provenance.values]``).
+SEED_PROVENANCE: dict[str, Provenance] = _seed_provenance()
 
 
 def table1_gains(step_m: float) -> tuple[float, float, float]:
@@ -197,32 +138,23 @@ def table1_gains(step_m: float) -> tuple[float, float, float]:
         raise _core.ConfigError(
             f"step_m = {step_m} is invalid: expected a finite non-zero step in m"
         )
-    rows: dict[float, tuple[float, float, float]] = _core.seed_values()["table1_gains"]
+    rows = _table1_rows()
     best = min(rows, key=lambda s: abs(math.log(s) - math.log(abs(step_m))))
     return rows[best]
 
 
 def seed_plant() -> Plant:
     """The seed axis plant (values and provenance in :data:`SEED_PROVENANCE`)."""
-    v = _core.seed_values()
-    return Plant(
-        motor=Motor(**v["motor"]),
-        motor_friction=StribeckFriction(**v["motor_friction"]),
-        gearhead=Gearhead(**v["gearhead"]),
-        screw=BallScrew(**v["screw"]),
-        table=Table(**v["table"]),
-        dahl=DahlFriction(**v["dahl"]),
-    )
+    plant = _seed_system().plant
+    assert isinstance(plant, Plant)
+    return plant
 
 
 def seed_controller(step_m: float = 1e-3) -> FpgaPid:
     """The seed FPGA loop with the Table 1 gains for ``step_m``."""
-    c = dict(_core.seed_values()["controller"])
-    for k in list(c):
-        if k.endswith("_format"):
-            c[k] = _fxp(c[k])
-    kp, ki, kd = table1_gains(step_m)
-    return FpgaPid(kp=kp, ki=ki, kd=kd, **c)
+    controller = seed(step_m).controller
+    assert isinstance(controller, FpgaPid)
+    return controller
 
 
 def seed(step_m: float = 1e-3) -> System:
@@ -236,14 +168,8 @@ def seed(step_m: float = 1e-3) -> System:
     >>> s.controller.kp, s.controller.ki, s.controller.kd
     (450.0, 2.0, 40.0)
     """
-    v = _core.seed_values()
-    return System(
-        plant=seed_plant(),
-        controller=seed_controller(step_m),
-        encoder=Encoder(**v["encoder"]),
-        output_stage=OutputStage(**v["output_stage"]),
-        integrator=IntegratorOptions(**v["integrator"]),
-    )
+    kp, ki, kd = table1_gains(step_m)
+    return with_gains(_seed_system(), kp=kp, ki=ki, kd=kd)
 
 
 def with_gains(system: System, *, kp: float, ki: float, kd: float) -> System:
@@ -283,26 +209,6 @@ def table1_system(step_m: float, model: System | None = None) -> System:
     return with_gains(model, kp=kp, ki=ki, kd=kd)
 
 
-#: EMPS numbers (Janot, Gautier, Brunot 2019; ../shared/data/emps/SOURCE.md): the
-#: authors' IDIM-LS identification, symmetric and asymmetric, and the logged controller.
-EMPS_VALUES: dict[str, float] = {
-    "drive_gain_n_per_v": 35.1507,
-    "mass_kg": 95.1089,
-    "viscous_n_s_per_m": 203.5034,
-    "coulomb_force_n": 20.3935,
-    "offset_n": -3.1648,
-    "kp_per_s": 160.18,
-    "kv_v_s_per_m": 243.45,
-    "count_m": 5e-8,
-    "saturation_v": 10.0,
-    "asym_mass_kg": 95.1540,
-    "viscous_pos_n_s_per_m": 166.7061,
-    "coulomb_pos_n": 20.1440,
-    "viscous_neg_n_s_per_m": 240.4236,
-    "coulomb_neg_n": 20.6277,
-}
-
-
 def emps(*, asymmetric: bool = False) -> System:
     """The EMPS axis: a force drive (35.15 N/V) moving a lumped mass with Coulomb + viscous
     friction (true stiction at Fc) and a constant offset force, the dSPACE cascade controller
@@ -312,40 +218,37 @@ def emps(*, asymmetric: bool = False) -> System:
     authors' symmetric identification, or with ``asymmetric`` their direction-dependent one
     (levels and viscous coefficients as mean ± asymmetry; the asymmetric set has no offset).
     """
-    v = EMPS_VALUES
-    if asymmetric:
-        fc = 0.5 * (v["coulomb_pos_n"] + v["coulomb_neg_n"])
-        fv = 0.5 * (v["viscous_pos_n_s_per_m"] + v["viscous_neg_n_s_per_m"])
-        friction = StaticFrictionMap(
-            static_force_n=fc,
-            coulomb_force_n=fc,
-            viscous_n_s_per_m=fv,
-            asymmetry=(v["coulomb_pos_n"] - fc) / fc,
-            viscous_asymmetry=(v["viscous_pos_n_s_per_m"] - fv) / fv,
+    system = _document("emps").system
+    if not asymmetric:
+        return system
+    plant = system.plant
+    assert isinstance(plant, ForceDrivePlant)
+    raw = _document("emps").provenance.get("asymmetric")
+    keys = [
+        "coulomb_neg_n",
+        "coulomb_pos_n",
+        "mass_kg",
+        "viscous_neg_n_s_per_m",
+        "viscous_pos_n_s_per_m",
+    ]
+    if not isinstance(raw, dict) or sorted(raw) != keys:
+        raise _file_error(
+            "emps",
+            f"provenance.asymmetric is invalid: expected a table of {', '.join(keys)}",
         )
-        mass, offset = v["asym_mass_kg"], 0.0
-    else:
-        friction = StaticFrictionMap(
-            static_force_n=v["coulomb_force_n"],
-            coulomb_force_n=v["coulomb_force_n"],
-            viscous_n_s_per_m=v["viscous_n_s_per_m"],
-        )
-        mass, offset = v["mass_kg"], v["offset_n"]
-    return System(
-        plant=ForceDrivePlant(
-            drive_gain_n_per_v=v["drive_gain_n_per_v"],
-            mass_kg=mass,
-            friction=friction,
-            external_force_n=offset,
-        ),
-        controller=CascadeController(
-            kp_per_s=v["kp_per_s"],
-            kv_v_s_per_m=v["kv_v_s_per_m"],
-            sample_period_s=1e-3,
-            saturation_v=v["saturation_v"],
-        ),
-        encoder=Encoder(count_m=v["count_m"], side="motor"),
-        effects=Effects(computation_delay_samples=1),
+    v = {k: _number("emps", f"provenance.asymmetric.{k}", raw[k]) for k in keys}
+    fc = 0.5 * (v["coulomb_pos_n"] + v["coulomb_neg_n"])
+    fv = 0.5 * (v["viscous_pos_n_s_per_m"] + v["viscous_neg_n_s_per_m"])
+    friction = StaticFrictionMap(
+        static_force_n=fc,
+        coulomb_force_n=fc,
+        viscous_n_s_per_m=fv,
+        asymmetry=(v["coulomb_pos_n"] - fc) / fc,
+        viscous_asymmetry=(v["viscous_pos_n_s_per_m"] - fv) / fv,
+    )
+    return replace(
+        system,
+        plant=replace(plant, mass_kg=v["mass_kg"], friction=friction, external_force_n=0.0),
     )
 
 
