@@ -33,7 +33,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import Any, Final, Literal, Protocol
 
@@ -45,6 +45,7 @@ from ._core import ConfigError
 from .checks import int_arg
 from .config import System
 from .cycles import Cycle
+from .measurement import MeasurementChain, arrival_times
 from .output import ProgressBar
 
 __all__ = [
@@ -66,7 +67,7 @@ MAX_THREADS: Final[int] = 1024
 #: Seconds between two progress-bar updates.
 _REFRESH_S: Final[float] = 0.1
 
-Reading = Literal["position", "encoder"]
+Reading = Literal["interferometer", "position", "encoder"]
 
 
 class TrialStatus(IntEnum):
@@ -142,6 +143,12 @@ class CampaignResult:
         The trials that did not complete, in trial order.
     compute_s : float
         Wall time of the campaign [s].
+    measurement : MeasurementChain or None
+        The out-of-loop effects between the table and the interferometer's reading at the
+        functional point (:mod:`nanostage.measurement`); None: the reading is the table
+        position.
+    interferometer_error_m : ndarray of float64, shape (n_trials, n_measurements), or None
+        The chain's error at each reading [m] (None without a chain).
     """
 
     cycle: Cycle
@@ -151,6 +158,8 @@ class CampaignResult:
     status: npt.NDArray[np.int8]
     failures: tuple[TrialFailure, ...]
     compute_s: float
+    measurement: MeasurementChain | None = None
+    interferometer_error_m: FloatArray | None = None
 
     @property
     def n_trials(self) -> int:
@@ -168,25 +177,81 @@ class CampaignResult:
         """Number of trials that did not complete."""
         return int(self.n_trials - np.count_nonzero(self.ok))
 
-    def actual_m(self, reading: Reading = "position") -> FloatArray:
+    @property
+    def time_s(self) -> FloatArray:
+        """Time of each reading from the start of the test (trial) [s], shape
+        ``(n_measurements,)``: the cycle's schedule (moves, dwells) at its measurement
+        instants (:attr:`~nanostage.cycles.Cycle.measure_time_s`)."""
+        return self.cycle.measure_time_s
+
+    @property
+    def interferometer_m(self) -> FloatArray:
+        """The interferometer's reading at the functional point, shape
+        ``(n_trials, n_measurements)`` [m]: the table position plus the measurement chain's
+        error (the table position itself without a chain)."""
+        if self.interferometer_error_m is None:
+            return self.position_m
+        out: FloatArray = self.position_m + self.interferometer_error_m
+        out.flags.writeable = False
+        return out
+
+    def with_measurement(self, measurement: MeasurementChain | None) -> CampaignResult:
+        """This campaign read through ``measurement`` (the loop's positions unchanged).
+
+        The chain's random parts are drawn per trial from ``(seed, trial)`` (the campaign's
+        seed), so the same campaign and chain give the same readings.
+
+        Raises
+        ------
+        ConfigError
+            ``measurement`` is not a :class:`~nanostage.measurement.MeasurementChain`.
+        """
+        if measurement is None or (
+            isinstance(measurement, MeasurementChain) and measurement.is_empty
+        ):
+            return replace(self, measurement=measurement, interferometer_error_m=None)
+        if not isinstance(measurement, MeasurementChain):
+            raise ConfigError(
+                f"measurement = {measurement!r} is invalid: expected a "
+                "nanostage.measurement.MeasurementChain or None"
+            )
+        cyc = self.cycle
+        move_m, dwell_s = arrival_times(cyc.reference_m, cyc.measure_index, cyc.sample_period_s)
+        err = measurement.error_m(
+            position_m=self.position_m,
+            time_s=self.time_s,
+            direction=cyc.direction,
+            move_m=move_m,
+            dwell_s=dwell_s,
+            seed=self.seed,
+        )
+        err.flags.writeable = False
+        return replace(self, measurement=measurement, interferometer_error_m=err)
+
+    def actual_m(self, reading: Reading = "interferometer") -> FloatArray:
         """Positions of one reading, shape ``(n_trials, n_measurements)`` [m].
 
         Parameters
         ----------
-        reading : {"position", "encoder"}
-            The true table position (interferometer) or the encoder reading.
+        reading : {"interferometer", "position", "encoder"}
+            The interferometer at the functional point (:attr:`interferometer_m`), the true
+            table position, or the encoder reading.
         """
+        if reading == "interferometer":
+            return self.interferometer_m
         if reading == "position":
             return self.position_m
         if reading == "encoder":
             return self.encoder_m
-        raise ConfigError(f"reading = {reading!r} is invalid: expected 'position' or 'encoder'")
+        raise ConfigError(
+            f"reading = {reading!r} is invalid: expected 'interferometer', 'position' or 'encoder'"
+        )
 
     def evaluate(
         self,
         trial: int | None = None,
         *,
-        reading: Reading = "position",
+        reading: Reading = "interferometer",
         coverage_factor: float = 2.0,
     ) -> iso230_2.Iso230Result:
         """ISO 230-2 evaluation of one trial, or of all completed trials pooled.
@@ -197,9 +262,10 @@ class CampaignResult:
             Trial index in ``[0, n_trials)``: that trial's test. ``None``: every completed
             trial's measurements taken as further runs of one test (runs renumbered), i.e.
             the test as if the trial-to-trial variation happened between runs.
-        reading : {"position", "encoder"}
-            Which position to evaluate (default: the true table position, as the paper's
-            interferometer measured it).
+        reading : {"interferometer", "position", "encoder"}
+            Which position to evaluate (default: the interferometer at the functional point,
+            as the paper measured; the true table position when the campaign has no
+            measurement chain).
         coverage_factor : float, default 2.0
             Coverage factor ``k`` [-].
 
@@ -243,7 +309,7 @@ class CampaignResult:
         return records.evaluate(coverage_factor=coverage_factor)
 
     def distribution(
-        self, *, reading: Reading = "position", coverage_factor: float = 2.0
+        self, *, reading: Reading = "interferometer", coverage_factor: float = 2.0
     ) -> dict[str, FloatArray]:
         """Every ISO 230-2 axis parameter of every trial.
 
@@ -264,7 +330,7 @@ class CampaignResult:
         return out
 
     def summary(
-        self, *, reading: Reading = "position", coverage_factor: float = 2.0
+        self, *, reading: Reading = "interferometer", coverage_factor: float = 2.0
     ) -> dict[str, dict[str, float]]:
         """Mean, standard deviation and percentiles (5, 50, 95) over the completed trials of
         each axis parameter that the test has [m]."""
@@ -470,6 +536,7 @@ def run_campaign(
     chunk_trials: int | None = None,
     progress: bool = True,
     control: _core.CampaignControl | None = None,
+    measurement: MeasurementChain | None = None,
 ) -> CampaignResult:
     """Run ``n_trials`` trials of ``cycle`` on the closed loop of ``system``.
 
@@ -500,6 +567,11 @@ def run_campaign(
     control : nanostage._core.CampaignControl, optional
         Stop request and progress counter of a local campaign, to stop it or watch it from
         another thread (default: a new one; each campaign has its own).
+    measurement : MeasurementChain, optional
+        Out-of-loop effects between the table and the interferometer at the functional point
+        (:mod:`nanostage.measurement`), applied at the readings after the loop has run
+        (:meth:`CampaignResult.with_measurement`); default: the interferometer reads the
+        table position.
 
     Returns
     -------
@@ -533,6 +605,11 @@ def run_campaign(
             f"executor must have a submit method (concurrent.futures.Executor or a "
             f"dask.distributed.Client), not {type(executor).__name__}"
         )
+    if measurement is not None and not isinstance(measurement, MeasurementChain):
+        raise ConfigError(
+            f"measurement = {measurement!r} is invalid: expected a "
+            "nanostage.measurement.MeasurementChain or None"
+        )
     _core.validate_system(system)
     _check_memory(n, cycle.n_measurements)
     bounds = _chunks(n, chunk)
@@ -545,7 +622,8 @@ def run_campaign(
         parts = _run_executor(system, cycle, bounds, s, n_threads, executor, bar)
     compute_s = time.perf_counter() - t0
     bar.update(n, final=True)
-    return _assemble(cycle, s, parts, bounds, compute_s)
+    result = _assemble(cycle, s, parts, bounds, compute_s)
+    return result if measurement is None else result.with_measurement(measurement)
 
 
 def _assemble(
