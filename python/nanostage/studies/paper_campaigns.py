@@ -13,7 +13,8 @@ Method:
   at the start; the paper gives none of these.
 * System: :func:`nanostage.presets.seed` with the Table 1 gains of each step size (or a
   given ``model``, e.g. from :func:`nanostage.load_model`, with the Table 1 gains of each
-  step size in place of its PID gains: :func:`nanostage.presets.table1_system`), plus
+  step size in place of its PID gains: :func:`nanostage.presets.table1_system`, or with
+  ``gains="model"`` its own gains at both step sizes), plus
   :class:`~nanostage.effects.StochasticFriction` ``(level_spread=s)`` (one setting: a per-
   trial factor on every friction level, log-normal with mean 1; no within-trial
   fluctuation); with ``CampaignSettings.backlash_width_m`` also the gearhead backlash (a
@@ -48,13 +49,13 @@ from typing import Any, Final
 import numpy as np
 from scipy.optimize import brentq
 
-from .. import presets
 from .._core import ConfigError
 from ..campaign import MAX_THREADS, MAX_TRIALS, CampaignResult, run_campaign
 from ..config import System
 from ..cycles import Cycle, step_cycle
 from ..effects import Backlash, StochasticFriction
 from ..output import staged_output, write_json
+from .reproduce import GainSource, study_system
 
 __all__ = [
     "PAPER_FIGURES_M",
@@ -191,9 +192,13 @@ def _cycle(step_m: float, st: CampaignSettings) -> Cycle:
 
 
 def _system(
-    step_m: float, spread: float, backlash_width_m: float = 0.0, model: System | None = None
+    step_m: float,
+    spread: float,
+    backlash_width_m: float = 0.0,
+    model: System | None = None,
+    gains: GainSource = "table1",
 ) -> System:
-    base = presets.table1_system(step_m, model)
+    base = study_system(step_m, model, gains)
     backlash = Backlash(width_m=backlash_width_m) if backlash_width_m > 0.0 else None
     return replace(
         base,
@@ -210,11 +215,12 @@ def step_campaign(
     *,
     threads: int | None = None,
     model: System | None = None,
+    gains: GainSource = "table1",
 ) -> CampaignResult:
     """One campaign of repeated ``step_m`` steps at ``level_spread = spread`` (on the seed
-    axis, or on ``model`` with the Table 1 gains)."""
+    axis, or on ``model`` with the Table 1 gains, or its own with ``gains="model"``)."""
     return run_campaign(
-        _system(step_m, spread, st.backlash_width_m, model),
+        _system(step_m, spread, st.backlash_width_m, model, gains),
         _cycle(step_m, st),
         n_trials=st.n_trials,
         seed=st.seed,
@@ -274,11 +280,14 @@ def paper_campaigns(
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
     model: System | None = None,
+    gains: GainSource = "table1",
 ) -> dict[str, Any]:
     """Scan, calibrate on the 100 µm figure (on A↑ and on R↑ separately) and predict 1 mm.
 
     ``model``: the axis (default: the seed preset), with the Table 1 gains of each step
-    size in place of its PID gains; checked before any campaign runs.
+    size in place of its PID gains, or with ``gains="model"`` its own gains at both step
+    sizes (:func:`nanostage.studies.reproduce.study_system`); checked before any campaign
+    runs.
 
     Returns
     -------
@@ -290,7 +299,7 @@ def paper_campaigns(
     """
     st = st or CampaignSettings()
     for step in (CALIBRATION_STEP_M, PREDICTION_STEP_M):
-        _system(step, 0.0, st.backlash_width_m, model)
+        _system(step, 0.0, st.backlash_width_m, model, gains)
     say = log or (lambda _msg: None)
     t0 = time.perf_counter()
     cache: dict[tuple[float, float], dict[str, Any]] = {}
@@ -298,7 +307,9 @@ def paper_campaigns(
     def readings(step_m: float, s: float) -> dict[str, Any]:
         key = (step_m, s)
         if key not in cache:
-            cache[key] = _readings(step_campaign(step_m, s, st, threads=threads, model=model))
+            cache[key] = _readings(
+                step_campaign(step_m, s, st, threads=threads, model=model, gains=gains)
+            )
             r = cache[key]
             say(
                 f"  {step_m * 1e6:6.0f} µm, spread {s:.4f}: A↑ mean "
@@ -338,6 +349,7 @@ def paper_campaigns(
         better = min(errs, key=errs.__getitem__)
     return {
         "settings": asdict(st),
+        "gains": gains,
         "paper_m": {"100um": PAPER_FIGURES_M[100e-6], "1mm": PAPER_FIGURES_M[1e-3]},
         "paper_ratio_100um_to_1mm": PAPER_FIGURES_M[100e-6] / PAPER_FIGURES_M[1e-3],
         "scan": scan,
@@ -358,10 +370,15 @@ def _backlash_words(width_m: float) -> str:
 def markdown(res: dict[str, Any]) -> str:
     """The results of :func:`paper_campaigns` as Markdown."""
     st = res["settings"]
+    gain_words = (
+        "the model's own gains"
+        if res.get("gains", "table1") == "model"
+        else "Table 1 gains per step size"
+    )
     lines = [
         "# ISO 230-2 step campaigns: calibration on 100 µm, prediction of 1 mm",
         "",
-        f"Seed axis{_backlash_words(st['backlash_width_m'])}, Table 1 gains per step size, "
+        f"Seed axis{_backlash_words(st['backlash_width_m'])}, {gain_words}, "
         "`StochasticFriction(level_spread=s)` "
         f"(log-normal per-trial friction level, mean 1). Step cycle: {st['repeats']} steps, "
         f"dwell {st['dwell_s']} s, return {st['return_s']} s; {st['n_trials']} trials per "
@@ -430,6 +447,7 @@ def write_paper_campaigns(
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
     model: System | None = None,
+    gains: GainSource = "table1",
 ) -> dict[str, Any]:
     """Run :func:`paper_campaigns`, write ``campaigns.json`` and ``campaigns.md``.
 
@@ -438,7 +456,9 @@ def write_paper_campaigns(
     """
     check_threads(threads)
     with staged_output(out_dir, "reproduce --campaigns") as folder:
-        return write_paper_campaigns_into(folder, st, threads=threads, log=log, model=model)
+        return write_paper_campaigns_into(
+            folder, st, threads=threads, log=log, model=model, gains=gains
+        )
 
 
 def write_paper_campaigns_into(
@@ -448,12 +468,13 @@ def write_paper_campaigns_into(
     threads: int | None = None,
     log: Callable[[str], None] | None = None,
     model: System | None = None,
+    gains: GainSource = "table1",
 ) -> dict[str, Any]:
     """:func:`write_paper_campaigns` writing straight into an existing ``folder`` (a staged
     one)."""
     check_threads(threads)
     out = Path(folder)
-    res = paper_campaigns(st, threads=threads, log=log, model=model)
+    res = paper_campaigns(st, threads=threads, log=log, model=model, gains=gains)
     write_json(res, out / "campaigns.json", indent=2)
     md = markdown(res)
     (out / "campaigns.md").write_text(md, encoding="utf-8")

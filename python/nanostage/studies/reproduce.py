@@ -2,8 +2,9 @@
 
 Every function takes an optional ``model`` (a :class:`~nanostage.System`, e.g. from
 :func:`nanostage.load_model`): the axis is then that model, with the Table 1 gains of each
-step size in place of its PID gains (:func:`nanostage.presets.table1_system`); without it,
-the seed preset.
+step size in place of its PID gains (:func:`nanostage.presets.table1_system`), or with
+``gains="model"`` with its own PID gains at every step size (:func:`study_system`); without
+it, the seed preset.
 """
 
 from __future__ import annotations
@@ -12,8 +13,10 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Final, Literal
 
 from .. import presets
+from .._core import ConfigError
 from ..analysis import StepMetrics, step_metrics
 from ..config import FpgaPid, Plant, System
 from ..output import staged_output, write_json
@@ -46,6 +49,42 @@ def slew_velocity_m_per_s(plant: Plant, voltage_v: float) -> float:
     return r * w
 
 
+#: Where the PID gains of a study's axis come from: ``table1``, the paper's Table 1 gains of
+#: each step size; ``model``, the model's own gains at every step size.
+GainSource = Literal["table1", "model"]
+GAIN_SOURCES: Final[tuple[str, ...]] = ("table1", "model")
+
+
+def study_system(
+    step_m: float, model: System | None = None, gains: GainSource = "table1"
+) -> System:
+    """The axis of a Table 1 study at ``step_m``: :func:`nanostage.presets.table1_system`
+    (the seed preset, or ``model`` with the Table 1 gains of ``step_m``), or with
+    ``gains="model"`` ``model`` as it is, its own PID gains included.
+
+    Raises
+    ------
+    ConfigError
+        If ``gains`` is not one of :data:`GAIN_SOURCES`, if ``gains="model"`` comes without
+        a ``model``, or if ``model`` is not a Table 1 axis (a rigid-axis plant with an FPGA
+        PID).
+    """
+    if gains not in GAIN_SOURCES:
+        raise ConfigError(
+            f"gains = {gains!r} is invalid: expected one of {', '.join(map(repr, GAIN_SOURCES))}"
+        )
+    system = presets.table1_system(step_m, model)
+    if gains == "table1":
+        return system
+    if model is None:
+        raise ConfigError(
+            "gains = 'model' needs a model (a model file: nanostage.load_model(path), or "
+            "--model FILE) whose PID gains to keep; without one the axis is the seed preset "
+            "with the Table 1 gains (gains = 'table1')"
+        )
+    return model
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Experiment:
     """One reproduced step: its gains, trace and figures."""
@@ -56,10 +95,10 @@ class Experiment:
     metrics: StepMetrics
 
 
-def run_experiments(model: System | None = None) -> list[Experiment]:
+def run_experiments(model: System | None = None, gains: GainSource = "table1") -> list[Experiment]:
     """Simulate the four Table 1 steps on the seed axis (or on ``model`` with the Table 1
-    gains)."""
-    systems = [presets.table1_system(step, model) for step, _ in EXPERIMENTS_M_S]
+    gains, or with its own with ``gains="model"``)."""
+    systems = [study_system(step, model, gains) for step, _ in EXPERIMENTS_M_S]
     out = []
     for (step, duration), system in zip(EXPERIMENTS_M_S, systems, strict=True):
         tr = simulate_step(system, step, duration_s=duration)
@@ -95,27 +134,36 @@ def table(exps: list[Experiment]) -> str:
 
 
 def reproduce(
-    out_dir: str | Path, *, plot: bool = True, model: System | None = None
+    out_dir: str | Path,
+    *,
+    plot: bool = True,
+    model: System | None = None,
+    gains: GainSource = "table1",
 ) -> dict[str, object]:
     """Run the experiments, write ``summary.json`` (and ``steps.png``), return the summary.
 
     The folder is written whole or not at all (:func:`nanostage.output.staged_output`): it
     must be new, empty or an earlier run's folder, which is checked before any work.
-    ``model``: the axis (module docstring), checked before any work.
+    ``model`` and ``gains``: the axis and its gains (module docstring), checked before any
+    work.
     """
-    presets.table1_system(1e-3, model)
+    study_system(1e-3, model, gains)
     with staged_output(out_dir, "reproduce") as folder:
-        return reproduce_into(folder, plot=plot, model=model)
+        return reproduce_into(folder, plot=plot, model=model, gains=gains)
 
 
 def reproduce_into(
-    folder: Path, *, plot: bool = True, model: System | None = None
+    folder: Path,
+    *,
+    plot: bool = True,
+    model: System | None = None,
+    gains: GainSource = "table1",
 ) -> dict[str, object]:
     """:func:`reproduce` writing straight into an existing ``folder`` (a staged one)."""
     out = Path(folder)
-    system = presets.table1_system(1e-3, model)
+    system = study_system(1e-3, model, gains)
     t0 = time.perf_counter()
-    exps = run_experiments(model)
+    exps = run_experiments(model, gains)
     compute_s = time.perf_counter() - t0
     v_lim = system.output_stage.amplifier_limit_v
     assert isinstance(system.plant, Plant)

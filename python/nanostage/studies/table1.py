@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 
-from .. import presets
 from ..config import System
 from ..output import staged_output, write_json
 from ..tune import (
@@ -27,6 +26,7 @@ from ..tune import (
     tuning_cycle,
     with_friction_spread,
 )
+from .reproduce import GainSource, study_system
 
 __all__ = ["markdown", "plot_pareto", "tune_table1", "write_tune_report"]
 
@@ -46,13 +46,18 @@ def tune_table1(
     progress: bool = True,
     log: Callable[[str], None] | None = None,
     model: System | None = None,
+    gains: GainSource = "table1",
 ) -> dict[str, Any]:
     """Tune the seed axis for each step size and compare with the paper's Table 1 gains.
 
     ``model`` (a :class:`~nanostage.System`, e.g. from :func:`nanostage.load_model`):
     tune that axis instead (plant, effects, controller formats and timing, encoder, output
-    stage, integrator), starting each step size from the Table 1 gains, which a System does
-    not carry (:func:`nanostage.presets.table1_system`); checked before any search.
+    stage, integrator), starting each step size from the Table 1 gains in place of the
+    model's (:func:`nanostage.presets.table1_system`), or with ``gains="model"`` from the
+    model's own gains, which the report then compares the tuned ones with
+    (:func:`nanostage.studies.reproduce.study_system`); checked before any search. The
+    report's ``gains`` names the starting gains and is the key of their figures in each
+    step's row (``table1`` or ``model``, beside ``tuned``).
 
     The search uses campaign seed ``seed``; the comparison re-runs both gain sets on
     ``eval_trials`` (default ``n_trials``) *other* draws (campaign seed ``seed + 1``), the
@@ -62,7 +67,7 @@ def tune_table1(
     eval_n = n_trials if eval_trials is None else eval_trials
     rows: list[dict[str, Any]] = []
     results: dict[float, TuneResult] = {}
-    systems = [presets.table1_system(step, model) for step in steps_m]
+    systems = [study_system(step, model, gains) for step in steps_m]
     for step, base in zip(steps_m, systems, strict=True):
         system = with_friction_spread(base, level_spread)
         cycle = tuning_cycle(step)
@@ -82,7 +87,7 @@ def tune_table1(
         )
         results[step] = r
         held = {}
-        for name, c in (("table1", r.start), ("tuned", r.best)):
+        for name, c in ((gains, r.start), ("tuned", r.best)):
             held[name] = evaluate_gains(
                 system,
                 cycle,
@@ -106,7 +111,7 @@ def tune_table1(
                     "message": r.message,
                     "settings": r.settings,
                 },
-                "table1": held["table1"],
+                gains: held[gains],
                 "tuned": held["tuned"],
                 "pareto": [c.to_dict() for c in pareto_front(r.history)],
                 "history": [c.to_dict() for c in r.history],
@@ -119,8 +124,15 @@ def tune_table1(
         "eval_trials": eval_n,
         "seed": seed,
         "eval_seed": seed + 1,
+        "gains": gains,
         "steps": rows,
     }
+
+
+def _start(report: dict[str, Any]) -> tuple[str, str]:
+    """The key of the starting gains in a report's rows and their label."""
+    key = str(report.get("gains", "table1"))
+    return key, "Table 1" if key == "table1" else "model"
 
 
 def _fmt(v: float | None, scale: float, digits: int = 1) -> str:
@@ -152,11 +164,12 @@ def markdown(report: dict[str, Any]) -> str:
         f"trials (seed {report['eval_seed']}), the same draws for both gain sets.",
         "",
     ]
+    start, start_label = _start(report)
     # Per-trial ISO figures exist only when each trial repeats the step.
     per_trial = any(
         row[n]["accuracy_up_trial_mean_m"] is not None
         for row in report["steps"]
-        for n in ("table1", "tuned")
+        for n in (start, "tuned")
     )
     lines.append(
         "| step | gains | Kp, Ki, Kd | anti-windup | settling p95 [ms] | settled [%] | "
@@ -166,11 +179,11 @@ def markdown(report: dict[str, Any]) -> str:
     )
     lines.append("|---" * (11 + per_trial) + "|")
     for row in report["steps"]:
-        for name in ("table1", "tuned"):
+        for name in (start, "tuned"):
             c = row[name]
             trial = f"| {_fmt(c['accuracy_up_trial_mean_m'], 1e6, 3)} " if per_trial else ""
             lines.append(
-                f"| {row['step_m'] * 1e6:g} µm | {'Table 1' if name == 'table1' else 'tuned'} "
+                f"| {row['step_m'] * 1e6:g} µm | {start_label if name == start else 'tuned'} "
                 f"| {c['kp']:g}, {c['ki']:g}, {c['kd']:g} | {c['anti_windup']} "
                 f"| {_fmt(c['settling_time_s'], 1e3, 0)} | {c['settled_fraction'] * 100:.0f} "
                 f"| {_fmt(c['overshoot_m'], 1e6)} | {_fmt(c['final_error_m'], 1e9, 0)} "
@@ -191,11 +204,12 @@ def markdown(report: dict[str, Any]) -> str:
 
 def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
     """Settling time against pooled A↑ of every evaluated candidate, the Pareto front, the
-    Table 1 and the tuned gains; one panel per step size."""
+    starting (Table 1 or the model's) and the tuned gains; one panel per step size."""
 
     from matplotlib.figure import Figure
     from matplotlib.ticker import LogFormatter
 
+    start, start_label = _start(report)
     steps = report["steps"]
     ncol = min(2, len(steps))
     nrow = math.ceil(len(steps) / ncol)
@@ -224,7 +238,7 @@ def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
                 label="Pareto front (search draws)",
             )
         for name, style, label in (
-            ("table1", "s", "Table 1 (held-out draws)"),
+            (start, "s", f"{start_label} (held-out draws)"),
             ("tuned", "*", "tuned (held-out draws)"),
         ):
             c = row[name]
@@ -235,7 +249,7 @@ def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
                     style,
                     ms=10,
                     label=label,
-                    color="C3" if name == "table1" else "C2",
+                    color="C3" if name == start else "C2",
                 )
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -245,7 +259,9 @@ def plot_pareto(report: dict[str, Any], path: str | Path) -> None:
         ax.set_title(f"{row['step_m'] * 1e6:g} µm step")
         ax.grid(True, which="both", alpha=0.3)
     flat[0].legend(fontsize=7)
-    fig.suptitle("Every evaluated candidate (search draws); Table 1 and tuned on held-out draws")
+    fig.suptitle(
+        f"Every evaluated candidate (search draws); {start_label} and tuned on held-out draws"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
@@ -264,7 +280,8 @@ def write_tune_report(
     with staged_output(out_dir, "tune") as folder:
         write_json(report, folder / names["json"], indent=1)
         (folder / names["markdown"]).write_text(
-            "# Table 1 against tuned gains\n\n" + markdown(report), encoding="utf-8"
+            f"# {_start(report)[1].capitalize()} gains against tuned gains\n\n" + markdown(report),
+            encoding="utf-8",
         )
         if plot:
             plot_pareto(report, folder / names["pareto"])
