@@ -140,8 +140,10 @@ def _load_model_option(args: argparse.Namespace) -> Any:
 
 
 def _table1_model(args: argparse.Namespace) -> Any:
-    """``--model`` for the Table 1 studies: loaded, and checked to be a Table 1 axis."""
+    """``--model`` for the Table 1 studies: loaded, and checked to be a Table 1 axis; and
+    ``--gains``, checked to go with it."""
     from .presets import table1_system
+    from .studies.reproduce import study_system
 
     model = _load_model_option(args)
     if model is not None:
@@ -149,6 +151,7 @@ def _table1_model(args: argparse.Namespace) -> Any:
             table1_system(1e-3, model)
         except ValueError as exc:
             raise ValueError(f"--model {args.model}: {exc}") from None
+    study_system(1e-3, model, args.gains)
     return model
 
 
@@ -177,7 +180,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         )
     names = ["summary.json", "steps.png"] if plot else ["summary.json"]
     with staged_output(args.out, "reproduce") as folder:
-        summary = reproduce_into(folder, plot=plot, model=model)
+        summary = reproduce_into(folder, plot=plot, model=model, gains=args.gains)
         print(summary["table_markdown"])
         slew = summary["slew_at_voltage_limit"]
         assert isinstance(slew, dict)
@@ -194,6 +197,7 @@ def _reproduce(args: argparse.Namespace) -> int:
                 threads=args.threads,
                 log=None if args.quiet else _log_line,
                 model=model,
+                gains=args.gains,
             )
             print()
             print(res["markdown"])
@@ -366,10 +370,10 @@ def _iso_gap(args: argparse.Namespace) -> int:
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from . import presets
     from .campaign import MAX_TRIALS
     from .checks import int_arg
     from .studies.paper_campaigns import check_threads
+    from .studies.reproduce import study_system
     from .studies.table1 import markdown, tune_table1, write_tune_report
     from .tune import Objective, check_search, tuning_cycle, with_friction_spread
 
@@ -390,7 +394,7 @@ def _tune(args: argparse.Namespace) -> int:
         obj = Objective.repeatability()
     steps = [s * 1e-6 for s in (args.step_um or [100.0, 500.0, 1000.0, 10000.0])]
     for step in steps:
-        with_friction_spread(presets.table1_system(step, model), args.spread)
+        with_friction_spread(study_system(step, model, args.gains), args.spread)
         tuning_cycle(step)
     check_search(args.trials, args.seed, args.popsize, args.maxiter)
     if args.eval_trials is not None:
@@ -410,6 +414,7 @@ def _tune(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         log=None if args.quiet else _log_line,
         model=model,
+        gains=args.gains,
     )
     files = write_tune_report(args.out, report, plot=not args.no_plot)
     print(markdown(report))
@@ -454,10 +459,20 @@ def _model_export(args: argparse.Namespace) -> int:
 _TABLE1_MODEL_HELP: Final = (
     "the axis as a model file (nanostage model export, save_model; docs/model-file.md): "
     "plant, effects, controller formats and timing, encoder, output stage and integrator "
-    "are the model's; the PID gains of each step size are Table 1's (the seed preset's), "
-    "which a model file does not carry. The model must have a rigid_axis plant and an "
-    "fpga_pid controller (default: the seed preset)"
+    "are the model's; the PID gains are Table 1's for each step size (the seed preset's) "
+    "unless --gains model. The model must have a rigid_axis plant and an fpga_pid "
+    "controller (default: the seed preset)"
 )
+_GAINS_HELP: Final = (
+    "the PID gains (Kp, Ki, Kd, anti-windup) of the axis: table1, the paper's Table 1 gains "
+    "of each step size (default); model, the --model file's own gains at every step size"
+)
+
+
+def _add_gains_option(p: argparse.ArgumentParser, also: str = "") -> None:
+    p.add_argument(
+        "--gains", choices=("table1", "model"), default="table1", help=_GAINS_HELP + also
+    )
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -477,6 +492,7 @@ def _build_parser() -> argparse.ArgumentParser:
     rep.add_argument(
         "--model", default=None, metavar="FILE", help=_TABLE1_MODEL_HELP + "; also --campaigns"
     )
+    _add_gains_option(rep, "; also --campaigns")
     rep.add_argument(
         "--campaigns",
         action="store_true",
@@ -516,6 +532,7 @@ def _build_parser() -> argparse.ArgumentParser:
             "CampaignSettings.seed": "--campaign-seed",
             "CampaignSettings.backlash_width_m": "--campaign-backlash-m",
             "threads": "--threads",
+            "gains": "--gains",
         },
     )
     iso230_2.add_cli(sub)
@@ -591,6 +608,7 @@ def _build_parser() -> argparse.ArgumentParser:
     tu.add_argument("--seed", type=_integer, default=0, help="seed of the search (0)")
     tu.add_argument("--threads", type=_integer, default=None, help="threads (default: all cores)")
     tu.add_argument("--model", default=None, metavar="FILE", help=_TABLE1_MODEL_HELP)
+    _add_gains_option(tu, "; the tuning starts from them and the report compares with them")
     tu.add_argument("--out", default="tune", help="output directory (default: tune)")
     tu.add_argument("--no-plot", action="store_true", help="skip pareto.png")
     tu.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -609,6 +627,7 @@ def _build_parser() -> argparse.ArgumentParser:
             "maxiter": "--maxiter",
             "seed": "--seed",
             "threads": "--threads",
+            "gains": "--gains",
         },
     )
     gap = sub.add_parser(
