@@ -160,39 +160,26 @@ def test_the_tuned_gains_beat_the_models_own(walked: Path) -> None:
     # The same comparison again, outside the command: the model file, the command's
     # objective (mix), friction spread (0.2) and held-out draws (seed 2, 32 trials).
     model = with_friction_spread(load_model(walked / "diag" / "model.toml"), 0.2)
-    cycle = tuning_cycle(100e-6)
-    scores = {}
     for name, c in (("model", start), ("tuned", tuned)):
-        cand = evaluate_gains(
-            model,
-            cycle,
-            objective=Objective.mix(),
-            n_trials=32,
-            seed=2,
-            kp=c["kp"],
-            ki=c["ki"],
-            kd=c["kd"],
-            anti_windup=c["anti_windup"],
-        )
-        assert cand.metrics.objective == c["objective"]
-        scores[name] = cand.metrics.objective
-    assert scores["tuned"] < scores["model"]
+        assert _objective(model, c, seed=2) == c["objective"], name
     # And on draws neither the search nor the comparison saw.
-    fresh = {
-        name: evaluate_gains(
-            model,
-            cycle,
-            objective=Objective.mix(),
-            n_trials=32,
-            seed=99,
-            kp=c["kp"],
-            ki=c["ki"],
-            kd=c["kd"],
-            anti_windup=c["anti_windup"],
-        ).metrics.objective
-        for name, c in (("model", start), ("tuned", tuned))
-    }
-    assert fresh["tuned"] < fresh["model"]
+    assert _objective(model, tuned, seed=99) < _objective(model, start, seed=99)
+
+
+def _objective(model: System, gains: dict[str, Any], *, seed: int) -> float:
+    """The ``tune`` command's objective (mix) of ``gains`` on the 100 µm tuning cycle, 32
+    trials with campaign seed ``seed``."""
+    return evaluate_gains(
+        model,
+        tuning_cycle(100e-6),
+        objective=Objective.mix(),
+        n_trials=32,
+        seed=seed,
+        kp=gains["kp"],
+        ki=gains["ki"],
+        kd=gains["kd"],
+        anti_windup=gains["anti_windup"],
+    ).metrics.objective
 
 
 # ---- the --gains option -------------------------------------------------------------------
