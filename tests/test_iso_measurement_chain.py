@@ -331,3 +331,55 @@ def test_run_campaign_rejects_a_wrong_measurement_before_any_trial() -> None:
             progress=False,
             measurement="x",  # type: ignore[arg-type]
         )
+
+
+# --------------------------------------------------------------------------------------------
+# The paper's case (nanostage iso-gap)
+# --------------------------------------------------------------------------------------------
+
+
+def test_the_study_figure_of_a_test_is_the_iso_a_and_r() -> None:
+    from nanostage.studies.iso_gap import single_target_figures_m
+
+    cyc = _step_cycle(100e-6, repeats=5)
+    res = run_campaign(presets.seed(100e-6), cyc, n_trials=2, seed=2, progress=False)
+    read = res.with_measurement(
+        MeasurementChain(interferometer=InterferometerEnvironment(noise_std_m=1e-7))
+    )
+    fig = single_target_figures_m(read.interferometer_m)
+    for t in range(2):
+        iso = read.evaluate(t)
+        assert fig[t] == pytest.approx(iso.accuracy_up_m, rel=1e-12)
+        assert fig[t] == pytest.approx(iso.repeatability_up_m, rel=1e-12)
+
+
+def test_the_study_calibrates_white_noise_to_the_hand_computed_size() -> None:
+    """Pure white interferometer noise σ gives a mean 4·s over 5 runs of 4·c4·σ with
+    c4(5) = 0.9400: 3.19 µm needs σ ≈ 0.848 µm, i.e. about 85 × the 10 nm of factor 1
+    (the loop's own 0.2 µm scatter adds a little in quadrature)."""
+    from nanostage.studies import iso_gap
+
+    st = iso_gap.GapSettings(n_trials=64, return_s=(0.5,), n_grid=9)
+    study = iso_gap._Study(st, 1, lambda _m: None)
+    noise = next(c for c in iso_gap.CANDIDATES if c.name == "interferometer_noise")
+    out = iso_gap._calibrate_one(study, (noise,), 0.5, 100e-6)
+    assert out["factor"] == pytest.approx(3.19e-6 / (4 * 0.9400 * 10e-9), rel=0.12)
+    assert out["verdict"] == "implausible magnitude"
+    # Step-size independent: the 1 mm prediction is the same size; the paper's 1.83 µm
+    # lies inside the band of one test's figure.
+    assert out["predicted"]["mean_m"] == pytest.approx(3.19e-6, rel=0.15)
+    assert out["paper_inside_band"]
+    # A scale error shifts the one target: it cannot make any scatter.
+    scale = next(c for c in iso_gap.CANDIDATES if c.name == "scale_error")
+    assert iso_gap._calibrate_one(study, (scale,), 0.5, 100e-6)["verdict"] == "cannot reach"
+
+
+def test_the_study_settings_are_checked() -> None:
+    from nanostage.studies.iso_gap import GapSettings
+
+    with pytest.raises(
+        ConfigError, match=r"GapSettings.return_s = 90.0 is invalid: .*\[0.001, 60\] s"
+    ):
+        GapSettings(return_s=(90.0,))
+    with pytest.raises(ConfigError, match=r"GapSettings.n_trials = 1 is invalid: .*\[2, "):
+        GapSettings(n_trials=1)
