@@ -157,6 +157,9 @@ def test_the_tuned_gains_beat_the_models_own(walked: Path) -> None:
     start, tuned = row["model"], row["tuned"]
     assert (start["kp"], start["ki"], start["kd"]) == TRUTH_GAINS
     assert tuned["objective"] < 0.5 * start["objective"]
+    md = (walked / "tune" / "tune.md").read_text(encoding="utf-8")
+    assert md.startswith("# The model's gains against tuned gains\n")
+    assert "| 100 µm | model | 300, 3, 20 | conditional |" in md
     # The same comparison again, outside the command: the model file, the command's
     # objective (mix), friction spread (0.2) and held-out draws (seed 2, 32 trials).
     model = with_friction_spread(load_model(walked / "diag" / "model.toml"), 0.2)

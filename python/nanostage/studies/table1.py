@@ -279,9 +279,9 @@ def write_tune_report(
         names["pareto"] = "pareto.png"
     with staged_output(out_dir, "tune") as folder:
         write_json(report, folder / names["json"], indent=1)
+        title = "Table 1" if _start(report)[0] == "table1" else "The model's gains"
         (folder / names["markdown"]).write_text(
-            f"# {_start(report)[1].capitalize()} gains against tuned gains\n\n" + markdown(report),
-            encoding="utf-8",
+            f"# {title} against tuned gains\n\n" + markdown(report), encoding="utf-8"
         )
         if plot:
             plot_pareto(report, folder / names["pareto"])
