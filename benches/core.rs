@@ -5,8 +5,10 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use nanostage::control::Pid;
 use nanostage::integrate::Rodas4;
 use nanostage::model::{Axis, Plant};
-use nanostage::presets::{seed_closed_loop, seed_pid, speed_case_backlash_link, speed_case_gms6};
+#[path = "../rust/tests/support/presets.rs"]
+mod presets;
 use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
+use presets::{seed_closed_loop, seed_pid, speed_case_backlash_link, speed_case_gms6};
 use std::hint::black_box;
 
 fn controller_update(c: &mut Criterion) {

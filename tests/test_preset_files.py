@@ -7,12 +7,11 @@ from __future__ import annotations
 import dataclasses
 import importlib.resources
 import math
-from typing import Any
 
 import pytest
 
 import nanostage as ns
-from nanostage import _core, presets
+from nanostage import presets
 from nanostage.config import (
     BallScrew,
     CascadeController,
@@ -22,7 +21,6 @@ from nanostage.config import (
     FpgaPid,
     Fxp,
     Gearhead,
-    IntegratorOptions,
     Motor,
     OutputStage,
     Plant,
@@ -39,32 +37,6 @@ TABLE1 = {
     1e-3: (450.0, 5.0, 10.0),
     10e-3: (450.0, 5.0, 25.0),
 }
-
-
-def test_seed_file_matches_the_core_seed_values() -> None:
-    """The seed file against the numbers the Rust core reports (``_core.seed_values``)."""
-    v = _core.seed_values()
-    fmt: dict[str, Any] = {k: Fxp(**f) for k, f in v["controller"].items() if k.endswith("_format")}
-    rest = {k: x for k, x in v["controller"].items() if not k.endswith("_format")}
-    for step, gains in v["table1_gains"].items():
-        kp, ki, kd = gains
-        expected = System(
-            plant=Plant(
-                motor=Motor(**v["motor"]),
-                motor_friction=StribeckFriction(**v["motor_friction"]),
-                gearhead=Gearhead(**v["gearhead"]),
-                screw=BallScrew(**v["screw"]),
-                table=Table(**v["table"]),
-                dahl=DahlFriction(**v["dahl"]),
-            ),
-            controller=FpgaPid(kp=kp, ki=ki, kd=kd, **fmt, **rest),
-            encoder=Encoder(**v["encoder"]),
-            output_stage=OutputStage(**v["output_stage"]),
-            integrator=IntegratorOptions(**v["integrator"]),
-        )
-        assert repr(presets.seed(step)) == repr(expected)
-        assert presets.table1_gains(step) == gains
-    assert list(v["table1_gains"]) == list(presets._table1_rows())
 
 
 def _fxp(word_bits: int, int_bits: int, overflow: str = "saturate", signed: bool = True) -> Fxp:

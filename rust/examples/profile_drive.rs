@@ -6,8 +6,10 @@
 //! wall time of REPS runs (default 20), the integrator's counters and a checksum of the
 //! positions (to see whether a change moved the trajectory). `CASE` filters by name.
 use nanostage::model::{DwellStatic, Link, TableFriction};
-use nanostage::presets::{seed_closed_loop, speed_case_backlash_link, speed_case_gms6};
+#[path = "../tests/support/presets.rs"]
+mod presets;
 use nanostage::sim::{run_extended, ExtendedConfig, KnownInputs};
+use presets::{seed_closed_loop, speed_case_backlash_link, speed_case_gms6};
 use std::time::Instant;
 
 fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {

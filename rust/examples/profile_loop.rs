@@ -18,10 +18,12 @@
 use nanostage::control::{flags, Pid};
 use nanostage::integrate::{Rodas4, Stats};
 use nanostage::model::{Axis, Mode, Plant};
-use nanostage::presets::seed_closed_loop;
+#[path = "../tests/support/presets.rs"]
+mod presets;
 use nanostage::sim::{
     run_extended, trial_seed, ExtendedConfig, KnownInputs, SpreadDistribution, StochasticFriction,
 };
+use presets::seed_closed_loop;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 

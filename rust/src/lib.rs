@@ -10,10 +10,17 @@ pub mod control;
 pub mod error;
 pub mod integrate;
 pub mod model;
-pub mod presets;
 pub mod sim;
 
 #[cfg(feature = "python")]
 mod python;
+
+// The unit tests read the seed preset from its model file with the test crates' helper,
+// which names this crate `nanostage`.
+#[cfg(test)]
+extern crate self as nanostage;
+#[cfg(test)]
+#[path = "../tests/support/presets.rs"]
+mod presets;
 
 pub use error::{ConfigError, SimError};

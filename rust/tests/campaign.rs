@@ -1,12 +1,14 @@
 //! Campaigns: bit-identical whatever the thread count or the split of the trial range; each
 //! trial equals a single run with its own seed; a failing trial is that trial's status while
 //! the others complete; the stop flag; bad input is an error before any work.
-use nanostage::presets::seed_closed_loop;
+#[path = "support/presets.rs"]
+mod presets;
 use nanostage::sim::{
     run_campaign, run_extended, trial_seed, Campaign, CampaignOutput, ExtendedConfig, KnownInputs,
     SpreadDistribution, StochasticFriction, TrialStatus,
 };
 use nanostage::SimError;
+use presets::seed_closed_loop;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 

@@ -1,7 +1,9 @@
 //! The seed closed loop: Table 1 steps settle; runs are deterministic; interruption works.
-use nanostage::presets::seed_closed_loop;
+#[path = "support/presets.rs"]
+mod presets;
 use nanostage::sim::run_closed_loop;
 use nanostage::SimError;
+use presets::seed_closed_loop;
 use std::sync::atomic::AtomicBool;
 
 fn step_ref(step: f64, n: usize) -> Vec<f64> {
@@ -50,5 +52,29 @@ fn empty_or_nan_reference_is_a_config_error() {
     match run_closed_loop(&cfg, &[0.0, f64::NAN], None) {
         Err(SimError::Config(e)) => assert_eq!(e.field, "reference_m[1]"),
         other => panic!("{other:?}"),
+    }
+}
+
+/// The seed model file against SEED.md's numbers (written out here, not read from the file).
+#[test]
+fn the_seed_file_is_the_papers_axis() {
+    let c = seed_closed_loop(1e-3);
+    assert_eq!(c.axis.gearhead.ratio, 19.0);
+    assert_eq!(c.axis.screw.lead_m, 2e-3);
+    assert_eq!(c.axis.dahl.coulomb_force_n, 30.4);
+    assert_eq!(c.axis.dahl.stiffness_n_per_m, 75e6); // 75 N/µm
+    assert_eq!(c.axis.dahl.exponent, 1.0);
+    assert_eq!(c.encoder.count_m, 100e-9);
+    assert_eq!(c.output.amplifier_limit_v, 6.0);
+    assert_eq!(c.pid.ticks_per_sample as f64 / c.pid.clock_hz, 1e-3);
+    for (step, gains) in [
+        (100e-6, (450.0, 2.0, 40.0)),
+        (500e-6, (450.0, 2.0, 40.0)),
+        (1e-3, (450.0, 5.0, 10.0)),
+        (10e-3, (450.0, 5.0, 25.0)),
+    ] {
+        assert_eq!(presets::table1_gains(step), gains, "Table 1 at {step} m");
+        let p = seed_closed_loop(step).pid;
+        assert_eq!((p.kp, p.ki, p.kd), gains);
     }
 }

@@ -1,9 +1,11 @@
 //! The component plant against the rigid seed plant, and effect physics that are cheapest to
 //! check in Rust.
 use nanostage::model::{AnyDrivePlant, DriveParams, Inputs, Link};
-use nanostage::presets::{seed_axis, seed_closed_loop};
+#[path = "support/presets.rs"]
+mod presets;
 use nanostage::sim::{run_closed_loop, run_extended, ExtendedConfig, KnownInputs};
 use nanostage::SimError;
+use presets::{seed_axis, seed_closed_loop};
 
 fn step(n: usize, size_m: f64) -> Vec<f64> {
     (0..n).map(|k| if k < 5 { 0.0 } else { size_m }).collect()

@@ -2,7 +2,9 @@
 //! basics. (The bit-exact PID check against an independent Python model is in tests/.)
 use nanostage::control::fixed::Exact;
 use nanostage::control::{AntiWindup, FxpFormat, Overflow, Pid, Rounding};
-use nanostage::presets::seed_pid;
+#[path = "support/presets.rs"]
+mod presets;
+use presets::seed_pid;
 
 fn model(raw: i64, s: u32, mode: Rounding) -> i64 {
     let d = 1i64 << s;

@@ -1,8 +1,10 @@
 //! The seed axis alone: true stiction (no creep), presliding rest, steady sliding speed.
 use nanostage::integrate::IntegratorOptions;
 use nanostage::model::{Axis, AxisParams};
-use nanostage::presets::seed_axis;
+#[path = "support/presets.rs"]
+mod presets;
 use nanostage::sim::run_open_loop;
+use presets::seed_axis;
 
 const T: f64 = 1e-3;
 

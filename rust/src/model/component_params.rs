@@ -390,6 +390,13 @@ impl Amplifier {
     }
 }
 
+/// The links of a rigid chain (`n_links = 0`: none is used).
+const UNUSED_LINKS: [Link; 2] = [Link {
+    stiffness_n_per_m: 1.0,
+    damping_n_s_per_m: 0.0,
+    backlash_m: 0.0,
+}; 2];
+
 impl DriveParams {
     /// The seed axis as a component plant: DC motor, rigid chain, motor Stribeck map, Dahl.
     pub fn from_axis(p: &AxisParams) -> Self {
@@ -404,11 +411,33 @@ impl DriveParams {
             table_mass_kg: p.table.mass_kg,
             external_force_n: p.table.external_force_n,
             n_links: 0,
-            links: [Link {
-                stiffness_n_per_m: 1.0,
-                damping_n_s_per_m: 0.0,
-                backlash_m: 0.0,
-            }; 2],
+            links: UNUSED_LINKS,
+            motor_modulation: Modulation::default(),
+            table_modulation: Modulation::default(),
+            amplifier: None,
+        }
+    }
+
+    /// A force drive (EMPS) as a component plant: `gain_n_per_v` N/V on a drive-side mass
+    /// `drive_mass_kg`, rigid chain, `friction` on the table, no motor friction.
+    pub fn force_drive(
+        gain_n_per_v: f64,
+        drive_mass_kg: f64,
+        friction: StaticMap,
+        table_mass_kg: f64,
+        external_force_n: f64,
+    ) -> Self {
+        Self {
+            actuator: Actuator::ForceDrive {
+                gain_n_per_v,
+                drive_mass_kg,
+            },
+            motor_friction: None,
+            table_friction: TableFriction::Static(friction),
+            table_mass_kg,
+            external_force_n,
+            n_links: 0,
+            links: UNUSED_LINKS,
             motor_modulation: Modulation::default(),
             table_modulation: Modulation::default(),
             amplifier: None,

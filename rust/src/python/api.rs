@@ -547,12 +547,6 @@ fn validate_integrator(integrator: &Bound<'_, PyAny>) -> PyResult<()> {
         .map_err(config_err)
 }
 
-/// The seed preset's numbers as nested dicts (one source for Rust and Python).
-#[pyfunction]
-fn seed_values(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
-    super::extract::seed_values(py)
-}
-
 /// Add the entry points of this file and [`StopFlag`] to the module.
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<StopFlag>()?;
@@ -565,7 +559,6 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(pid_run, m)?)?;
     m.add_function(wrap_pyfunction!(cascade_run, m)?)?;
     m.add_function(wrap_pyfunction!(fxp_requantize, m)?)?;
-    m.add_function(wrap_pyfunction!(seed_values, m)?)?;
     m.add_function(wrap_pyfunction!(validate_plant, m)?)?;
     m.add_function(wrap_pyfunction!(validate_controller, m)?)?;
     m.add_function(wrap_pyfunction!(validate_integrator, m)?)?;

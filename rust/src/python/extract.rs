@@ -1,7 +1,7 @@
 //! The one mirror of the Python configuration dataclasses: `#[derive(FromPyObject)]` structs
 //! read by field name (the field names are the contract) and converted into the core's
-//! structs and specs, and the way back for the seed preset's values ([`seed_values`]).
-use crate::control::{AntiWindup, CascadeConfig, FxpFormat, OutputStage, Overflow, Rounding};
+//! structs and specs.
+use crate::control::{CascadeConfig, OutputStage};
 use crate::error::ConfigError as CoreConfigError;
 use crate::integrate::IntegratorOptions;
 use crate::model::{
@@ -15,7 +15,6 @@ use crate::sim::{
 };
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 use pyo3::Borrowed;
 
 /// An enum of configuration classes extracted by the Python class name when it is one of
@@ -578,151 +577,4 @@ impl PySystem {
             },
         })
     }
-}
-
-/// The seed preset's numbers as nested dicts (one source for Rust and Python).
-pub(crate) fn seed_values(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
-    let c = crate::presets::seed_closed_loop(1e-3);
-    let a = c.axis;
-    let d = PyDict::new(py);
-    let block = |pairs: &[(&str, f64)]| -> PyResult<Bound<'_, PyDict>> {
-        let b = PyDict::new(py);
-        for (k, v) in pairs {
-            b.set_item(*k, *v)?;
-        }
-        Ok(b)
-    };
-    let motor = block(&[
-        ("resistance_ohm", a.motor.resistance_ohm),
-        ("inductance_h", a.motor.inductance_h),
-        ("torque_constant_nm_per_a", a.motor.torque_constant_nm_per_a),
-        ("back_emf_v_s_per_rad", a.motor.back_emf_v_s_per_rad),
-        ("rotor_inertia_kg_m2", a.motor.rotor_inertia_kg_m2),
-    ])?;
-    motor.set_item("quasi_static_current", a.motor.quasi_static_current)?;
-    d.set_item("motor", motor)?;
-    d.set_item(
-        "motor_friction",
-        block(&[
-            ("static_torque_nm", a.motor_friction.static_torque_nm),
-            ("coulomb_torque_nm", a.motor_friction.coulomb_torque_nm),
-            (
-                "viscous_nm_s_per_rad",
-                a.motor_friction.viscous_nm_s_per_rad,
-            ),
-            (
-                "stribeck_velocity_rad_per_s",
-                a.motor_friction.stribeck_velocity_rad_per_s,
-            ),
-            ("stribeck_exponent", a.motor_friction.stribeck_exponent),
-        ])?,
-    )?;
-    d.set_item(
-        "gearhead",
-        block(&[
-            ("ratio", a.gearhead.ratio),
-            ("efficiency", a.gearhead.efficiency),
-        ])?,
-    )?;
-    d.set_item(
-        "screw",
-        block(&[
-            ("lead_m", a.screw.lead_m),
-            ("efficiency", a.screw.efficiency),
-            ("inertia_kg_m2", a.screw.inertia_kg_m2),
-        ])?,
-    )?;
-    d.set_item(
-        "table",
-        block(&[
-            ("mass_kg", a.table.mass_kg),
-            ("external_force_n", a.table.external_force_n),
-        ])?,
-    )?;
-    d.set_item(
-        "dahl",
-        block(&[
-            ("coulomb_force_n", a.dahl.coulomb_force_n),
-            ("stiffness_n_per_m", a.dahl.stiffness_n_per_m),
-            ("exponent", a.dahl.exponent),
-        ])?,
-    )?;
-    d.set_item("encoder", block(&[("count_m", c.encoder.count_m)])?)?;
-    d.set_item(
-        "output_stage",
-        block(&[
-            ("amplifier_gain", c.output.amplifier_gain),
-            ("amplifier_limit_v", c.output.amplifier_limit_v),
-        ])?,
-    )?;
-    let p = c.pid;
-    let fmt = |f: &FxpFormat| -> PyResult<Bound<'_, PyDict>> {
-        let b = PyDict::new(py);
-        b.set_item("signed", f.signed)?;
-        b.set_item("word_bits", f.word_bits)?;
-        b.set_item("int_bits", f.int_bits)?;
-        b.set_item(
-            "rounding",
-            match f.rounding {
-                Rounding::Truncate => "truncate",
-                Rounding::HalfUp => "half_up",
-                Rounding::HalfEven => "half_even",
-            },
-        )?;
-        b.set_item(
-            "overflow",
-            match f.overflow {
-                Overflow::Saturate => "saturate",
-                Overflow::Wrap => "wrap",
-            },
-        )?;
-        Ok(b)
-    };
-    let ctl = PyDict::new(py);
-    for (k, f) in [
-        ("gain_format", &p.gain_format),
-        ("measurement_format", &p.measurement_format),
-        ("error_format", &p.error_format),
-        ("term_format", &p.term_format),
-        ("integrator_format", &p.integrator_format),
-        ("output_format", &p.output_format),
-        ("dac_format", &p.dac_format),
-        ("dac_scale_format", &p.dac_scale_format),
-    ] {
-        ctl.set_item(k, fmt(f)?)?;
-    }
-    ctl.set_item("output_min", p.output_min)?;
-    ctl.set_item("output_max", p.output_max)?;
-    ctl.set_item(
-        "anti_windup",
-        match p.anti_windup {
-            AntiWindup::None => "none",
-            AntiWindup::Clamp => "clamp",
-            AntiWindup::Conditional => "conditional",
-        },
-    )?;
-    ctl.set_item("output_unit_v", p.output_unit_v)?;
-    ctl.set_item("dac_lsb_v", p.dac_lsb_v)?;
-    ctl.set_item("clock_hz", p.clock_hz)?;
-    ctl.set_item("ticks_per_sample", p.ticks_per_sample)?;
-    ctl.set_item("latency_ticks", p.latency_ticks)?;
-    d.set_item("controller", ctl)?;
-    let o = c.integrator;
-    let integ = block(&[
-        ("rtol", o.rtol),
-        ("atol_position_m", o.atol_position_m),
-        ("h_init_s", o.h_init_s),
-        ("h_min_s", o.h_min_s),
-        ("h_max_s", o.h_max_s),
-        ("event_tol_s", o.event_tol_s),
-    ])?;
-    integ.set_item("max_steps", o.max_steps)?;
-    integ.set_item("max_events", o.max_events)?;
-    d.set_item("integrator", integ)?;
-    let gains = PyDict::new(py);
-    for step in [100e-6, 500e-6, 1e-3, 10e-3] {
-        gains.set_item(step, crate::presets::table1_gains(step))?;
-    }
-    d.set_item("table1_gains", gains)?;
-    Ok(d)
 }

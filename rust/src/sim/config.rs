@@ -11,7 +11,7 @@ use crate::control::{
 use crate::error::ConfigError;
 use crate::integrate::IntegratorOptions;
 use crate::model::{
-    Actuator, Amplifier, AxisParams, DriveParams, DwellStatic, Link, Modulation, Side, StaticMap,
+    Amplifier, AxisParams, DriveParams, DwellStatic, Link, Modulation, Side, StaticMap,
     TableFriction, MAX_MODULATION_TERMS,
 };
 
@@ -351,18 +351,16 @@ pub fn build_system(
     let fx = &sys.effects;
     let (mut drive, axis) = match &sys.plant {
         PlantSpec::Rigid(axis) => (DriveParams::from_axis(axis), Some(*axis)),
-        PlantSpec::ForceDrive(f) => {
-            let mut d = DriveParams::from_axis(&crate::presets::seed_axis());
-            d.actuator = Actuator::ForceDrive {
-                gain_n_per_v: f.drive_gain_n_per_v,
-                drive_mass_kg: f.drive_mass_kg,
-            };
-            d.motor_friction = None;
-            d.table_friction = TableFriction::Static(f.friction);
-            d.table_mass_kg = f.mass_kg;
-            d.external_force_n = f.external_force_n;
-            (d, None)
-        }
+        PlantSpec::ForceDrive(f) => (
+            DriveParams::force_drive(
+                f.drive_gain_n_per_v,
+                f.drive_mass_kg,
+                f.friction,
+                f.mass_kg,
+                f.external_force_n,
+            ),
+            None,
+        ),
     };
     if let Some(tf) = &fx.table_friction {
         drive.table_friction = *tf;
