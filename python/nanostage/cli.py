@@ -464,8 +464,9 @@ _TABLE1_MODEL_HELP: Final = (
     "controller (default: the seed preset)"
 )
 _GAINS_HELP: Final = (
-    "the PID gains (Kp, Ki, Kd, anti-windup) of the axis: table1, the paper's Table 1 gains "
-    "of each step size (default); model, the --model file's own gains at every step size"
+    "the PID gains Kp, Ki, Kd of the axis: table1, the paper's Table 1 gains of each step "
+    "size (default); model, the --model file's own gains at every step size (the anti-windup "
+    "is the model's either way)"
 )
 
 
