@@ -77,5 +77,10 @@ check "matplotlib is not installed with the bare wheel" test "$code" -eq 0
 run nanostage reproduce --out rep
 check "nanostage reproduce without matplotlib" eval '[ "$code" -eq 0 ] && [ -s rep/summary.json ] && [ ! -e rep/steps.png ] && grep -q "| " out.txt && [ "$(wc -l <err.txt)" -eq 1 ] && grep -qF "pip install \"nanostage[plot]\"" err.txt && no_traceback'
 
+# 6. The presets are read from the model files the wheel ships (nanostage/model_files):
+# the seed in 1, the EMPS here.
+run nanostage model export emps_asymmetric --out emps.model.toml
+check "nanostage model export emps_asymmetric (a shipped preset file)" eval '[ "$code" -eq 0 ] && grep -q "force_drive" emps.model.toml && no_traceback'
+
 echo "smoke: $passed passed, $failed failed"
 [ "$failed" -eq 0 ]
