@@ -152,9 +152,10 @@ def seed_plant() -> Plant:
 
 def seed_controller(step_m: float = 1e-3) -> FpgaPid:
     """The seed FPGA loop with the Table 1 gains for ``step_m``."""
-    controller = seed(step_m).controller
+    controller = _seed_system().controller
     assert isinstance(controller, FpgaPid)
-    return controller
+    kp, ki, kd = table1_gains(step_m)
+    return replace(controller, kp=kp, ki=ki, kd=kd)
 
 
 def seed(step_m: float = 1e-3) -> System:
