@@ -45,6 +45,7 @@ from scipy.optimize import brentq
 from .. import presets
 from .._core import ConfigError
 from ..campaign import MAX_TRIALS, CampaignResult, run_campaign
+from ..checks import int_arg
 from ..config import System
 from ..cycles import Cycle, step_cycle
 from ..effects import EncoderErrors, StochasticFriction
@@ -254,10 +255,10 @@ class GapSettings:
     back_to_back: bool = True
 
     def __post_init__(self) -> None:
-        _int("n_trials", self.n_trials, 2, MAX_TRIALS)
-        _int("seed", self.seed, 0, 2**64 - 1)
-        _int("repeats", self.repeats, 2, 1000)
-        _int("n_grid", self.n_grid, 5, 400)
+        int_arg("GapSettings.n_trials", self.n_trials, 2, MAX_TRIALS)
+        int_arg("GapSettings.seed", self.seed, 0, 2**64 - 1)
+        int_arg("GapSettings.repeats", self.repeats, 2, 1000)
+        int_arg("GapSettings.n_grid", self.n_grid, 5, 400)
         _real("dwell_s", self.dwell_s, 1e-3, 60.0, "s")
         _real("level_spread", self.level_spread, 0.0, 0.5, "")
         if not isinstance(self.return_s, tuple) or not self.return_s:
@@ -272,13 +273,6 @@ class GapSettings:
                 f"GapSettings.back_to_back = {self.back_to_back!r} is invalid: expected True "
                 "or False"
             )
-
-
-def _int(name: str, value: object, lo: int, hi: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ConfigError(
-            f"GapSettings.{name} = {value!r} is invalid: expected an integer in [{lo}, {hi}]"
-        )
 
 
 def _real(name: str, value: object, lo: float, hi: float, unit: str) -> None:
