@@ -33,7 +33,7 @@ from nanostage.output import (
     staged_output,
     write_json,
 )
-from nanostage.studies import emps, emps_study, paper_campaigns, reproduce, table1
+from nanostage.studies import emps, emps_study, iso_gap, paper_campaigns, reproduce, table1
 
 from conftest import SHARED, write_emps_mat
 
@@ -342,6 +342,8 @@ ERROR_CASES: list[tuple[list[str], list[str]]] = [
     (["model", "export", "sed", "--out", "{tmp}/m.toml"], ["'sed'", "did you mean 'seed'"]),
     (["model", "export", "seed", "--out", "{tmp}"], ["--out", "is a folder"]),
     (["model", "export", "seed", "--out", "{tmp}/no/m.toml"], ["--out", "does not exist"]),
+    (["iso-gap", "--trials", "1", "--out", "{tmp}/g"], ["--trials", "n_trials = 1", "[2, "]),
+    (["iso-gap", "--threads", "0", "--out", "{tmp}/g"], ["--threads", "threads = 0", "[1, 1024]"]),
     (["no-such-command"], ["invalid choice", "'no-such-command'"]),
 ]
 
@@ -409,6 +411,7 @@ WORK: dict[str, tuple[list[str], list[tuple[Any, str]]]] = {
     "diagnose-benchmark": (["--cases", "1"], [(benchmark, "_run_benchmark")]),
     "emps": (["--mat", "{junk_mat}"], [(emps_study, "load_emps")]),
     "iso230": (["{csv}"], [(iso230_2, "read_measurement_csv")]),
+    "iso-gap": ([], [(iso_gap, "iso_gap")]),
     "predict": (
         ["{manifest}"],
         [(importlib.import_module("nanostage.diagnosis.predict"), "predict")],
