@@ -383,3 +383,106 @@ def test_the_study_settings_are_checked() -> None:
         GapSettings(return_s=(90.0,))
     with pytest.raises(ConfigError, match=r"GapSettings.n_trials = 1 is invalid: .*\[2, "):
         GapSettings(n_trials=1)
+
+
+# --------------------------------------------------------------------------------------------
+# A measured ISO test as input: every problem named with file, line and column
+# --------------------------------------------------------------------------------------------
+
+_HEADER = "target_m,direction,run,actual_m,encoder_m,time_s,temperature_k"
+
+
+def _measurement_rows(targets: tuple[float, ...] = (0.0, 0.01), runs: int = 3) -> list[list[str]]:
+    """A unidirectional test in the order it ran: run by run, target by target."""
+    rows = []
+    t = 0.0
+    for r in range(1, runs + 1):
+        for x in targets:
+            t += 2.0
+            rows.append(
+                [repr(x), "+", str(r), repr(x + 1e-7 * r), repr(x + 2e-8), repr(t), "293.4"]
+            )
+    return rows
+
+
+def _write(tmp_path, rows: list[list[str]], header: str = _HEADER):  # type: ignore[no-untyped-def]
+    path = tmp_path / "meas.csv"
+    path.write_text(
+        "# a measured test\n" + header + "\n" + "\n".join(",".join(r) for r in rows) + "\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+def test_a_measured_test_reads_with_its_encoder_times_and_temperatures(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from nanostage.measurement import read_iso_measurement
+
+    m = read_iso_measurement(_write(tmp_path, _measurement_rows()), travel_m=(0.0, 0.05))
+    assert m.time_s is not None and m.encoder_m is not None and m.temperature_k is not None
+    np.testing.assert_allclose(m.time_s, 2.0 * np.arange(1, 7))
+    np.testing.assert_allclose(m.encoder_m, [2e-8, 0.01 + 2e-8] * 3, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(m.temperature_k, 293.4)
+    # Deviations 0.1, 0.2, 0.3 µm at both targets: R↑ = 4 · 0.1 µm.
+    assert m.evaluate().repeatability_up_m == pytest.approx(4e-7, rel=1e-9)
+    # In °C and millimetres.
+    rows = [[*r[:4], repr(float(r[4]) * 1e3), r[5], "20.25"] for r in _measurement_rows()]
+    header = "target_m,direction,run,actual_m,encoder_mm,time_s,temperature_c"
+    m2 = read_iso_measurement(_write(tmp_path, rows, header))
+    assert m2.encoder_m is not None and m2.temperature_k is not None
+    np.testing.assert_allclose(m2.encoder_m, m.encoder_m, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(m2.temperature_k, 293.4)
+
+
+def _moved(row: list[str], by_m: float) -> list[str]:
+    return [repr(float(row[0]) + by_m), *row[1:3], repr(float(row[3]) + by_m), *row[4:]]
+
+
+def _bad(rows: list[list[str]], i: int, column: int, value: str) -> list[list[str]]:
+    out = [list(r) for r in rows]
+    out[i][column] = value
+    return out
+
+
+@pytest.mark.parametrize(
+    ("edit", "line", "column", "words"),
+    [
+        # A missing run: run 2 at target 0 is absent (its row removed).
+        (lambda rows: rows[:2] + rows[3:], 3, "run", ["runs [1, 3]", "[2] missing"]),
+        # Unequal runs: target 0.01 has a fourth run.
+        (
+            lambda rows: [*rows, ["0.01", "+", "4", "0.0100004", "0.01", "14.0", "293.4"]],
+            4,
+            "run",
+            ["has 4 runs", "line 3", "has 3"],
+        ),
+        # Millimetres in the metre column of the encoder.
+        (lambda rows: _bad(rows, 1, 4, "10.00002"), 4, "encoder_m", ["mixed units"]),
+        # A temperature in °C in the kelvin column.
+        (lambda rows: _bad(rows, 2, 6, "20.3"), 5, "temperature_k", ["20.3", "°C"]),
+        # A target outside the travel [0, 0.05] m (the second target moved by 5 cm).
+        (
+            lambda rows: [_moved(r, 0.05) if r[0] == "0.01" else r for r in rows],
+            4,
+            "target_m",
+            ["0.06 m is outside the travel [0, 0.05] m"],
+        ),
+        # Time going backwards at the fourth reading.
+        (lambda rows: _bad(rows, 3, 5, "5.0"), 6, "time_s", ["5 s is not after", "6 s"]),
+    ],
+)
+def test_a_bad_measured_test_names_file_line_and_column(  # type: ignore[no-untyped-def]
+    tmp_path, edit, line, column, words
+) -> None:
+    from nanostage.iso230_2 import Iso230InputError
+    from nanostage.measurement import read_iso_measurement
+
+    path = _write(tmp_path, edit(_measurement_rows()))
+    with pytest.raises(Iso230InputError) as info:
+        read_iso_measurement(path, travel_m=(0.0, 0.05))
+    err = info.value
+    assert (err.source, err.line, err.column) == (str(path), line, column)
+    msg = str(err)
+    assert msg.startswith(f"{path}, line {line}, column {column!r}: ")
+    assert "\n" not in msg
+    for w in words:
+        assert w in msg

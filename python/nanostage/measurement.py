@@ -37,24 +37,30 @@ Equations, valid ranges and typical values with their sources: ``docs/effects.md
 
 from __future__ import annotations
 
+import csv
 import math
 import numbers
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
+from . import iso230_2
 from ._core import ConfigError
+from .csvfile import open_csv, read_header, skip_row
 
 __all__ = [
     "AbbeError",
     "InterferometerEnvironment",
+    "IsoMeasurement",
     "MeasurementChain",
     "ScaleError",
     "SettlingResidual",
     "ThermalDrift",
     "arrival_times",
+    "read_iso_measurement",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -566,3 +572,247 @@ def arrival_times(
     move: FloatArray = np.where(k >= 0, ref[idx] - ref[start], 0.0)
     dwell: FloatArray = (idx - arrival).astype(np.float64) * float(sample_period_s)
     return move, dwell
+
+
+# --------------------------------------------------------------------------------------------
+# A measured ISO 230-2 test with its encoder readings, times and temperatures
+# --------------------------------------------------------------------------------------------
+
+#: Plausible temperatures of a test in kelvin (a value outside, e.g. 20, is in °C).
+TEMPERATURE_RANGE_K: Final[tuple[float, float]] = (173.15, 373.15)
+_CELSIUS_K: Final[float] = 273.15
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class IsoMeasurement:
+    """A measured ISO 230-2 test: the interferometer's records and, when the file has them,
+    the encoder reading, the time and the temperature of each reading (same order).
+
+    Attributes
+    ----------
+    records : iso230_2.MeasurementRecords
+        Target, direction, run and the interferometer reading (``actual_m``) per reading.
+    encoder_m : ndarray of float64 or None
+        The encoder (what the loop saw) at each reading [m].
+    time_s : ndarray of float64 or None
+        Time of each reading from the test's start [s], increasing in file order.
+    temperature_k : ndarray of float64 or None
+        Temperature at each reading [K].
+    """
+
+    records: iso230_2.MeasurementRecords
+    encoder_m: FloatArray | None = None
+    time_s: FloatArray | None = None
+    temperature_k: FloatArray | None = None
+
+    def evaluate(self, *, coverage_factor: float = 2.0) -> iso230_2.Iso230Result:
+        """ISO 230-2 evaluation of the interferometer's readings."""
+        return self.records.evaluate(coverage_factor=coverage_factor)
+
+
+def read_iso_measurement(
+    path: str | Path,
+    *,
+    travel_m: tuple[float, float] | None = None,
+    units: str | None = None,
+    target_tolerance_m: float = 1e-9,
+) -> IsoMeasurement:
+    """Read a measured ISO 230-2 test and check it whole before any simulation.
+
+    The file is the measurement CSV of :func:`nanostage.iso230_2.read_measurement_csv`
+    (``target_m``, ``direction``, ``run``, ``actual_m`` — the interferometer — with its
+    checks: units, duplicates, at least 2 runs) with optional columns: ``encoder_m`` (or
+    ``encoder_mm``), ``time_s`` (from the test's start) and ``temperature_k`` (or
+    ``temperature_c``). Further checks:
+
+    * every target has the runs ``1..n`` in each direction, none missing, and the same ``n``
+      at every target and direction (an ISO test approaches every target equally often);
+    * with ``travel_m = (lo, hi)``, every target lies in ``[lo, hi]``;
+    * the encoder reading differs from the target by a plausible deviation (the unit check
+      of ``actual_m``);
+    * the times are finite and increase strictly in file order (the order of the test);
+    * a ``temperature_k`` lies in [173.15, 373.15] K (20 is a temperature in °C).
+
+    Raises
+    ------
+    nanostage.iso230_2.Iso230InputError
+        ``"<file>, line <n>, column '<name>': <reason>"`` for the first problem found.
+    OSError
+        If the file cannot be read.
+    """
+    src = str(path)
+    records = iso230_2.read_measurement_csv(
+        path, units=units, target_tolerance_m=target_tolerance_m
+    )
+    line = records.line
+    assert line is not None  # a file's records carry their lines
+    _check_runs(records, src, target_tolerance_m)
+    if travel_m is not None:
+        lo, hi = (float(v) for v in travel_m)
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ConfigError(
+                f"travel_m = {travel_m!r} is invalid: expected (lo, hi) with lo < hi [m]"
+            )
+        bad = np.flatnonzero((records.target_m < lo) | (records.target_m > hi))
+        if bad.size:
+            i = int(bad[0])
+            raise iso230_2.Iso230InputError(
+                f"target {float(records.target_m[i]):.9g} m is outside the travel "
+                f"[{lo:g}, {hi:g}] m",
+                source=src,
+                line=int(line[i]),
+                column="target_m",
+            )
+    columns = _optional_columns(Path(path), src, [int(v) for v in line], units)
+    encoder = time = temperature = None
+    if "encoder" in columns:
+        col, encoder = columns["encoder"]
+        for i, (t, e) in enumerate(zip(records.target_m, encoder, strict=True)):
+
+            def fail(column: str, message: str, i: int = i) -> iso230_2.Iso230InputError:
+                return iso230_2.Iso230InputError(
+                    message, source=src, line=int(line[i]), column=column
+                )
+
+            iso230_2.evaluation.check_record_units(float(t), float(e), fail, ("target_m", col))
+    if "time" in columns:
+        col, time = columns["time"]
+        steps = np.flatnonzero(np.diff(time) <= 0.0)
+        if steps.size:
+            i = int(steps[0]) + 1
+            raise iso230_2.Iso230InputError(
+                f"time {float(time[i]):.9g} s is not after the previous reading's "
+                f"{float(time[i - 1]):.9g} s (line {int(line[i - 1])}); the readings must be in "
+                "the order of the test, with increasing times",
+                source=src,
+                line=int(line[i]),
+                column=col,
+            )
+    if "temperature" in columns:
+        col, temperature = columns["temperature"]
+        if col == "temperature_c":
+            temperature = temperature + _CELSIUS_K
+        lo_k, hi_k = TEMPERATURE_RANGE_K
+        bad = np.flatnonzero((temperature < lo_k) | (temperature > hi_k))
+        if bad.size:
+            i = int(bad[0])
+            raw = float(columns["temperature"][1][i])
+            hint = (
+                " (a value in °C? name the column temperature_c)" if col == "temperature_k" else ""
+            )
+            raise iso230_2.Iso230InputError(
+                f"temperature {raw:.6g} is outside [{lo_k:g}, {hi_k:g}] K{hint}",
+                source=src,
+                line=int(line[i]),
+                column=col,
+            )
+    for arr in (encoder, time, temperature):
+        if arr is not None:
+            arr.flags.writeable = False
+    return IsoMeasurement(
+        records=records, encoder_m=encoder, time_s=time, temperature_k=temperature
+    )
+
+
+def _check_runs(records: iso230_2.MeasurementRecords, src: str, tolerance_m: float) -> None:
+    """Runs 1..n at every target and direction, the same n everywhere."""
+    line = records.line
+    assert line is not None
+    order = np.argsort(records.target_m, kind="stable")
+    groups: dict[tuple[int, str], list[int]] = {}
+    start = math.nan
+    g = -1
+    for idx in order:
+        t = float(records.target_m[idx])
+        if g < 0 or t - start > tolerance_m:
+            g += 1
+            start = t
+        groups.setdefault((g, str(records.direction[idx])), []).append(int(idx))
+    expected: int | None = None
+    first_key: tuple[int, str] | None = None
+    for key in sorted(groups, key=lambda k: min(int(line[i]) for i in groups[k])):
+        members = groups[key]
+        runs = sorted(int(records.run[i]) for i in members)
+        where = min(members, key=lambda i: int(line[i]))
+        target = float(records.target_m[where])
+        missing = sorted(set(range(1, max(runs) + 1)) - set(runs))
+        if missing or runs[0] < 1:
+            raise iso230_2.Iso230InputError(
+                f"target {target:.9g} m, direction {key[1]!r} has runs {runs}: run(s) "
+                f"{missing or [r for r in runs if r < 1]} missing or invalid (expected 1..n)",
+                source=src,
+                line=int(line[where]),
+                column="run",
+            )
+        if expected is None:
+            expected, first_key = len(runs), key
+        elif len(runs) != expected:
+            assert first_key is not None
+            first = min(groups[first_key], key=lambda i: int(line[i]))
+            raise iso230_2.Iso230InputError(
+                f"target {target:.9g} m, direction {key[1]!r} has {len(runs)} runs but target "
+                f"{float(records.target_m[first]):.9g} m, direction {first_key[1]!r} (line "
+                f"{int(line[first])}) has {expected}; an ISO 230-2 test approaches every target "
+                "equally often",
+                source=src,
+                line=int(line[where]),
+                column="run",
+            )
+
+
+def _optional_columns(
+    path: Path, src: str, lines: list[int], units: str | None
+) -> dict[str, tuple[str, FloatArray]]:
+    """The optional columns' values at the records' lines: kind → (column, values in SI)."""
+    kinds = {
+        "encoder": [("encoder_m", 1.0), ("encoder_mm", 1e-3)],
+        "time": [("time_s", 1.0)],
+        "temperature": [("temperature_k", 1.0), ("temperature_c", 1.0)],
+    }
+    rows: dict[int, list[str]] = {}
+    with open_csv(path) as fh:
+        reader = csv.reader(fh)
+        header, header_line = read_header(reader)
+        assert header is not None  # the records were read from this file
+        for row in reader:
+            if not skip_row(row):
+                rows[reader.line_num] = row
+    out: dict[str, tuple[str, FloatArray]] = {}
+    for kind, options in kinds.items():
+        present = [(c, f) for c, f in options if c in header]
+        if not present:
+            continue
+        if len(present) > 1:
+            raise iso230_2.Iso230InputError(
+                f"both {' and '.join(c for c, _ in present)} in the header; give one",
+                source=src,
+                line=header_line,
+                column=present[0][0],
+            )
+        col, factor = present[0]
+        if kind == "encoder" and units is not None:
+            factor = iso230_2.LENGTH_UNITS[units]
+        j = header.index(col)
+        values = np.empty(len(lines), dtype=np.float64)
+        for k, ln in enumerate(lines):
+            row = rows[ln]
+            text = row[j].strip() if j < len(row) else ""
+            try:
+                v = float(text)
+            except ValueError:
+                raise iso230_2.Iso230InputError(
+                    "empty value" if not text else f"cannot parse {text!r} as a number",
+                    source=src,
+                    line=ln,
+                    column=col,
+                ) from None
+            if not math.isfinite(v):
+                raise iso230_2.Iso230InputError(
+                    f"value {text!r} is not a finite number (NaN/inf)",
+                    source=src,
+                    line=ln,
+                    column=col,
+                )
+            values[k] = v * factor
+        out[kind] = (col, values)
+    return out
