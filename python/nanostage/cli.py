@@ -292,6 +292,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=not args.quiet,
         truth_check=not args.no_truth_check,
+        truth=args.truth,
     )
     detect = (
         ""
@@ -552,6 +553,13 @@ def _build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--out", default="diagnose-benchmark", help="output directory")
     bm.add_argument("--cases", type=_integer, default=16, help="number of cases (default 16)")
     bm.add_argument("--seed", type=_integer, default=1, help="seed of the case draws (default 1)")
+    bm.add_argument(
+        "--truth",
+        choices=("own", "independent"),
+        default="own",
+        help="truth family of the cases: nanostage's own core and effects (own), or a "
+        "simulator written without nanostage's models (independent); default own",
+    )
     bm.add_argument("--quiet", action="store_true", help="no per-case lines")
     bm.add_argument(
         "--no-truth-check",

@@ -48,6 +48,7 @@ from ..effects import (
 from ..experiment import Experiment
 from ..output import check_output_dir, staged_output, write_json
 from ..simulate import simulate
+from . import independent_truth
 from .candidates import motor_static_force_n
 from .case_manifest import case_manifest_head
 from .manifest import load_manifest
@@ -61,6 +62,7 @@ __all__ = [
     "MAX_CASES",
     "MAX_SEED",
     "SPEED_DESIGN",
+    "TRUTH_FAMILIES",
     "design_reference",
     "draw_truth",
     "generate_case",
@@ -90,6 +92,11 @@ HIDDEN_EFFECTS: tuple[str, ...] = (
 ACCEPT: dict[str, set[str]] = {
     "presliding_gms": {"gms", "lugre"},
 }
+
+#: The truth families a benchmark draws its cases from: ``own`` (nanostage's own core and
+#: effect formulations, this module) and ``independent`` (a simulator written without
+#: nanostage's models, :mod:`nanostage.diagnosis.independent_truth`).
+TRUTH_FAMILIES: tuple[str, ...] = ("own", "independent")
 
 #: Contact stiffness of the hidden backlash (the candidate's default is 5e7 N/m, its
 #: damping fixed at another value than the truth's 800 N·s/m).
@@ -445,10 +452,18 @@ def run_benchmark(
     settings: DiagnosisSettings | None = None,
     progress: bool = True,
     truth_check: bool = True,
+    truth: str = "own",
 ) -> dict[str, Any]:
     """Generate ``cases`` cases (hidden effects cycled through ``hidden``, parameters random
     from ``seed``), diagnose each from its files alone, score, and write ``benchmark.json``
     and ``benchmark.md`` into ``out_dir``.
+
+    ``truth`` chooses the family the cases come from (:data:`TRUTH_FAMILIES`): ``own``
+    (nanostage's own core with its effects, this module's :func:`generate_case`) or
+    ``independent`` (:func:`nanostage.diagnosis.independent_truth.write_case`: another
+    integrator, other friction laws, effects written from their physics, ``command_v``
+    recorded, a 12-experiment design). The truth's own model and the truth-started check
+    exist for the own family only (the independent truth is not a nanostage model).
 
     With ``truth_check`` each case with an effect is also diagnosed with only the candidates
     that count as finding it, started from the truth's values (:func:`truth_starts`), one
@@ -465,19 +480,25 @@ def run_benchmark(
     ------
     ConfigError
         ``cases`` not an integer in [1, :data:`MAX_CASES`], ``seed`` not one in
-        [0, :data:`MAX_SEED`], or an unknown name in ``hidden``.
+        [0, :data:`MAX_SEED`], an unknown ``truth`` family, or a name in ``hidden`` that
+        the family does not draw.
     OutputError
         ``out_dir`` cannot be used (an existing file, a folder of other files, not writable).
     """
     for name, value, lo, hi in (("cases", cases, 1, MAX_CASES), ("seed", seed, 0, MAX_SEED)):
         if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
             raise ConfigError(f"{name} = {value!r} is invalid: expected an integer in [{lo}, {hi}]")
-    names = list(HIDDEN_EFFECTS if hidden is None else hidden)
-    unknown = [h for h in names if h not in HIDDEN_EFFECTS]
+    if truth not in TRUTH_FAMILIES:
+        raise ConfigError(
+            f"truth = {truth!r} is invalid: expected one of {', '.join(TRUTH_FAMILIES)}"
+        )
+    family = HIDDEN_EFFECTS if truth == "own" else independent_truth.HIDDEN_EFFECTS
+    names = list(family if hidden is None else hidden)
+    unknown = [h for h in names if h not in family]
     if not names or unknown:
         raise ConfigError(
             f"hidden = {names!r} is invalid: expected a non-empty list of "
-            f"{', '.join(HIDDEN_EFFECTS)}"
+            f"{', '.join(family)} (truth family {truth!r})"
         )
     check_output_dir(out_dir)
     with staged_output(out_dir, "diagnose-benchmark") as folder:
@@ -488,8 +509,9 @@ def run_benchmark(
             names,
             settings,
             progress=progress,
-            truth_check=truth_check,
+            truth_check=truth_check and truth == "own",
             final=Path(out_dir).expanduser().absolute(),
+            truth=truth,
         )
 
 
@@ -503,15 +525,24 @@ def _run_benchmark(
     progress: bool,
     truth_check: bool,
     final: Path,
+    truth: str = "own",
 ) -> dict[str, Any]:
     """The cases, written into the staging folder ``out``; reports name the manifests at
     their place in the ``final`` folder."""
+    own = truth == "own"
+    accept: dict[str, set[str]] = (
+        ACCEPT if own else {k: set(v) for k, v in independent_truth.ACCEPT.items()}
+    )
     rows = []
     t0 = time.perf_counter()
     for c in range(cases):
         h = names[c % len(names)]
         case_dir = out / f"case{c:02d}_{h}"
-        manifest, truth = generate_case(h, seed * 10_000 + c, case_dir)
+        manifest, drawn = (
+            generate_case(h, seed * 10_000 + c, case_dir)
+            if own
+            else independent_truth.write_case(h, seed * 10_000 + c, case_dir)
+        )
         t = time.perf_counter()
         # Given settings keep the case's own random seed (the manifest's), as the defaults do.
         st = dc.replace(settings, seed=seed * 10_000 + c) if settings else None
@@ -525,14 +556,14 @@ def _run_benchmark(
         )
         rep = d.report
         found = rep["selected"][0] if rep["selected"] else "none"
-        ok = found in ACCEPT.get(h, {h})
+        ok = found in accept.get(h, {h})
         # Found only up to a tie: the truth is among the candidates the report says the
         # validation data cannot tell from the first selection (not counted in top-1).
         tied = set(rep.get("indistinguishable", {}).get(found, [])) if found != "none" else set()
-        ok_tie = ok or bool(tied & ACCEPT.get(h, {h}))
+        ok_tie = ok or bool(tied & accept.get(h, {h}))
         seconds = time.perf_counter() - t
         check = (
-            _truth_check(h, manifest, truth, settings, seed * 10_000 + c)
+            _truth_check(h, manifest, drawn, settings, seed * 10_000 + c)
             if truth_check and h != "none"
             else None
         )
@@ -547,7 +578,7 @@ def _run_benchmark(
         # The shrink the truth's own deterministic model gives: what the data allow.
         oracle = (
             model_gap(manifest, oracle_model(h, seed * 10_000 + c))["total_rms_m"]
-            if h != "none"
+            if h != "none" and own
             else None
         )
         rows.append(
@@ -568,7 +599,7 @@ def _run_benchmark(
                 "oracle_shrink": None if oracle is None or before <= 0 else 1.0 - oracle / before,
                 "explained_fraction": rep["explained_fraction"],
                 "seconds": seconds,
-                "truth": truth["parameters"],
+                "truth": drawn["parameters"],
                 "truth_check": check,
             }
         )
@@ -594,9 +625,11 @@ def _run_benchmark(
     confusion = {h: {f: 0 for f in labels} for h in labels}
     for r in rows:
         confusion[r["hidden"]][r["found"]] += 1
+    oracles = [r["oracle_shrink"] for r in eff if r["oracle_shrink"] is not None]
     summary = {
         "cases": cases,
         "seed": seed,
+        "truth": truth,
         "top1": float(np.mean([r["correct"] for r in eff])) if eff else math.nan,
         "top1_up_to_ties": float(np.mean([r["correct_up_to_tie"] for r in eff]))
         if eff
@@ -608,9 +641,7 @@ def _run_benchmark(
         "median_explained_fraction": float(np.median([r["explained_fraction"] or 0.0 for r in eff]))
         if eff
         else math.nan,
-        "median_oracle_shrink": float(np.median([r["oracle_shrink"] for r in eff]))
-        if eff
-        else math.nan,
+        "median_oracle_shrink": float(np.median(oracles)) if oracles else math.nan,
         "median_crossfit_shrink": float(np.median([r["crossfit_shrink"] for r in eff]))
         if eff and all(r["crossfit_shrink"] is not None for r in eff)
         else None,
@@ -627,18 +658,25 @@ def _run_benchmark(
     md = [
         "# Diagnosis blind benchmark",
         "",
-        f"{cases} cases, seed {seed}. Top-1 {summary['top1']:.0%} (counting a truth the "
-        f"report names as indistinguishable from the first selection: "
+        f"{cases} cases of the {truth} truth family, seed {seed}. Top-1 "
+        f"{summary['top1']:.0%} (counting a truth the report names as indistinguishable "
+        f"from the first selection: "
         f"{summary['top1_up_to_ties']:.0%}), false alarms "
         f"{summary['false_alarm_rate']:.0%}, median shrink {summary['median_shrink']:.1%} "
         f"(of the gap above the noise floor: {summary['median_explained_fraction']:.0%}), "
         f"median {summary['median_seconds_per_case']:.0f} s per case.",
         "",
-        f"Shrink of the truth's own deterministic model (the hidden effect at its true "
-        f"values, no noise; nothing fitted): median {summary['median_oracle_shrink']:.1%}. "
-        "No model can remove more of the gap than that but by fitting noise: it is what "
-        "the drawn cases allow.",
-        "",
+        *(
+            [
+                f"Shrink of the truth's own deterministic model (the hidden effect at its "
+                f"true values, no noise; nothing fitted): median "
+                f"{summary['median_oracle_shrink']:.1%}. No model can remove more of the "
+                "gap than that but by fitting noise: it is what the drawn cases allow.",
+                "",
+            ]
+            if oracles
+            else []
+        ),
         *(
             []
             if summary["median_crossfit_shrink"] is None

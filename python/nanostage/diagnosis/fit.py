@@ -5,7 +5,7 @@ squares over the free parameters and a candidate's effect parameters) and its re
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,6 +21,7 @@ from .objective import (
     SimulationCache,
     apply_gap_plan,
     autocorrelation_time,
+    command_plan,
     gap_plan,
     rms_of,
     simulate_readings_and_commands,
@@ -64,8 +65,14 @@ class FitProblem:
         threads: int,
         adapt: Adapt,
         cache: SimulationCache | None = None,
+        command_weights_m_per_v: Mapping[str, float] | None = None,
     ) -> None:
         self.params = list(params)
+        #: Weight of the command gap against the position gap per experiment (by name),
+        #: m/V: with a weight > 0 the gap of an experiment with a measured command stacks
+        #: the position gap (m) and the command gap (V) times the weight; 0 or missing
+        #: leaves the command out of the experiment's gap.
+        self.command_weights_m_per_v = dict(command_weights_m_per_v or {})
         self.build = build
         self.experiments = list(experiments)
         #: Simulation threads of each batch (0: one per CPU).
@@ -77,9 +84,15 @@ class FitProblem:
         self.scale_m = 1e-7
         #: :func:`gap_plan` of each experiment (by name), computed on first use.
         self._plans: dict[str, list[HoldPlan]] = {}
+        #: :func:`command_plan` of each experiment whose command the gap uses.
+        self._command_plans: dict[str, list[HoldPlan]] = {}
+
+    def _uses_command(self, e: Experiment) -> bool:
+        return self.command_weights_m_per_v.get(e.name, 0.0) > 0.0 and e.command_v is not None
 
     def residuals(self, system: System, experiments: Sequence[Experiment]) -> list[FloatArray]:
-        """Per-experiment gap (measured − simulated mean reading)."""
+        """Per-experiment gap (measured − simulated mean reading; followed by the weighted
+        command gap where the problem uses the command, :attr:`command_weights_m_per_v`)."""
         return self.residuals_of([system], experiments)[0]
 
     def residuals_and_commands(
@@ -110,7 +123,19 @@ class FitProblem:
             for e, (reading, cmd) in zip(experiments, sims[j * n : (j + 1) * n], strict=True):
                 if e.name not in self._plans:
                     self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
-                gaps.append(apply_gap_plan(self._plans[e.name], e.position_m, reading))
+                gap = apply_gap_plan(self._plans[e.name], e.position_m, reading)
+                if self._uses_command(e):
+                    assert e.command_v is not None
+                    if e.name not in self._command_plans:
+                        self._command_plans[e.name] = command_plan(self._plans[e.name], e.command_v)
+                    gap = np.concatenate(
+                        [
+                            gap,
+                            self.command_weights_m_per_v[e.name]
+                            * apply_gap_plan(self._command_plans[e.name], e.command_v, cmd),
+                        ]
+                    )
+                gaps.append(gap)
                 command.append(
                     None if e.command_v is None else float(np.mean((e.command_v - cmd) ** 2))
                 )
@@ -123,8 +148,10 @@ class FitProblem:
         # worse than any valid model (the residuals are in counts).
         return np.concatenate(
             [
-                np.full(len(e.time_s), FAILED_GAP_M / (self.scale_m * math.sqrt(len(e.time_s))))
-                for e in self.experiments
+                np.full(n, FAILED_GAP_M / (self.scale_m * math.sqrt(n)))
+                for n in (
+                    len(e.time_s) * (2 if self._uses_command(e) else 1) for e in self.experiments
+                )
             ]
         )
 

@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from ..output import write_json
-from .case_manifest import case_manifest_head
+from .case_manifest import UNCERTAIN_MOTOR_AND_INERTIA, case_manifest_head
 
 __all__ = [
     "HIDDEN_EFFECTS",
@@ -660,7 +660,22 @@ def write_case(
     out.mkdir(parents=True, exist_ok=True)
     fc0 = SEED["table_coulomb_force_n"]
     ts0, tc0 = SEED["static_torque_nm"], SEED["coulomb_torque_nm"]
-    lines = case_manifest_head(fc0, ts0, tc0, seed)
+    # The manifest frees what this family draws off the preset (a user frees what the
+    # datasheet does not pin down): the friction levels, and the motor constants, inertia,
+    # viscous friction, Stribeck velocity and presliding stiffness.
+    seed_key = {
+        "plant.motor.torque_constant_nm_per_a": "torque_constant_nm_per_a",
+        "plant.motor.resistance_ohm": "resistance_ohm",
+        "plant.motor.rotor_inertia_kg_m2": "rotor_inertia_kg_m2",
+        "plant.motor_friction.viscous_nm_s_per_rad": "viscous_nm_s_per_rad",
+        "plant.motor_friction.stribeck_velocity_rad_per_s": "stribeck_velocity_rad_per_s",
+        "plant.dahl.stiffness_n_per_m": "table_stiffness_n_per_m",
+    }
+    also = {
+        path: (SEED[seed_key[path]], lo, hi)
+        for path, (lo, hi) in UNCERTAIN_MOTOR_AND_INERTIA.items()
+    }
+    lines = case_manifest_head(fc0, ts0, tc0, seed, also_free=also)
     for i, e in enumerate(exps):
         tr = simulate_closed_loop(truth, e.reference_m, e.gains, seed * 1000 + i)
         data = np.column_stack([tr["time_s"], e.reference_m, tr["position_m"], tr["command_v"]])

@@ -18,7 +18,15 @@ from ..config import System
 from ..experiment import Experiment
 from .candidates import Candidate, Param, applicable_candidates
 from .fit import Fit, FitProblem
-from .objective import SimulationCache, floors_m, move_units, rms_of
+from .objective import (
+    SimulationCache,
+    channel_units,
+    command_floors_v,
+    floors_m,
+    move_units,
+    proportional_gain_v_per_m,
+    rms_of,
+)
 from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
 
@@ -54,6 +62,26 @@ class _Ctx:
     weights: Mapping[str, float] = field(default_factory=dict)
     #: Simulations of this diagnosis kept for reuse (None: every one simulated).
     cache: SimulationCache | None = None
+    #: Weight of the command gap against the position gap in every fit and judgement, m/V,
+    #: per experiment by name (none: the command is not part of the gap;
+    #: :func:`command_weights`).
+    command_weights_m_per_v: Mapping[str, float] = field(default_factory=dict)
+
+    def problem(
+        self,
+        params: Sequence[tuple[str, Param]],
+        build: Callable[[Sequence[float]], System],
+        experiments: Sequence[Experiment],
+    ) -> FitProblem:
+        return FitProblem(
+            params,
+            build,
+            experiments,
+            self.st.threads,
+            self.adapt,
+            self.cache,
+            self.command_weights_m_per_v,
+        )
 
     @property
     def n_validation(self) -> int:
@@ -100,9 +128,7 @@ class _Ctx:
                 for st in starts
             ]
             # Only its batch evaluation is used: the systems are built above.
-            prob = FitProblem(
-                self.free, lambda v: base, train, self.st.threads, self.adapt, self.cache
-            )
+            prob = self.problem(self.free, lambda v: base, train)
             ms = [
                 math.inf if r is None else rms_of(r) ** 2 for r in prob.residuals_or_none(systems)
             ]
@@ -137,14 +163,7 @@ class _Ctx:
                 (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
                 for n, p in self.free
             ]
-            prob = FitProblem(
-                free + list(params),
-                self.builder(base, apply_extra),
-                train,
-                self.st.threads,
-                self.adapt,
-                self.cache,
-            )
+            prob = self.problem(free + list(params), self.builder(base, apply_extra), train)
             # Two starts at least: the warm values, and the manifest's (prior) values.
             prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
             # Screening uses the warm start only, except for candidates without continuous
@@ -173,9 +192,7 @@ class _Ctx:
             ms += [float(np.mean(r**2)) for r in res]
             for e, r in zip(validate, res, strict=True):
                 w = self.weights.get(e.name, 1.0)
-                units += [
-                    w * float(np.sum(r[a:b] ** 2)) / len(r) for a, b in move_units(e.reference_m)
-                ]
+                units += [w * u for u in channel_units(r, len(e.time_s), move_units(e.reference_m))]
             command += val_command
         return fits, np.array(ms), residuals, command, np.array(units)
 
@@ -242,6 +259,28 @@ def diagnose_experiments(
         nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
     )
     ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
+    cmd_weights, _, _ = command_weights(
+        list(every.values()),
+        {n: ctx.adapt(nominal, e) for n, e in every.items()},
+        nominal.encoder.count_m,
+        st,
+    )
+    if cmd_weights:
+        # The command joins the gap: every fit and judgement from here on uses both
+        # channels, each in units of its own noise floor. The nominal model is calibrated
+        # again on both, from its calibration on the position.
+        ctx = dataclasses.replace(ctx, command_weights_m_per_v=cmd_weights)
+        w = sorted(cmd_weights.values())
+        print_progress(
+            f"diagnosis: the measured command joins the gap in {len(w)} experiment(s) "
+            f"(weight {w[len(w) // 2]:.3g} m/V, median: the position's noise floor over the "
+            "command's); calibrating again on both",
+            progress,
+        )
+        nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
+            nominal, (), lambda s, v: s, 1, st.seed
+        )
+        ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
     selected: list[str] = []
     rounds: list[list[CandidateResult]] = []
     refits: list[dict[str, Any]] = []
@@ -349,6 +388,7 @@ def diagnose_experiments(
         current_cmd = best.validation_command_ms
         current_units = best.validation_units
     return {
+        "command_weights_m_per_v": dict(ctx.command_weights_m_per_v),
         "nominal": nominal_fits[0],
         "nominal_fits": nominal_fits,
         "nominal_validation_ms": base_ms,
@@ -370,6 +410,35 @@ def diagnose_experiments(
             "reused": 0 if ctx.cache is None else ctx.cache.hits,
         },
     }
+
+
+def command_weights(
+    experiments: Sequence[Experiment],
+    systems: Mapping[str, System],
+    count_m: float,
+    st: DiagnosisSettings,
+) -> tuple[dict[str, float], float, dict[str, float]]:
+    """The weight of each experiment's command gap against its position gap, m/V (by name),
+    and the noise floors of the gap (overall, and per experiment), m. ``systems``: each
+    experiment's model (its controller gains).
+
+    With :attr:`DiagnosisSettings.command_channel`, an experiment with a measured command
+    gets the weight ``position floor / command floor`` (:func:`experiment_floors_m`,
+    :func:`command_floors_v`), so that each channel counts in units of its own noise floor:
+    a friction law that moves the position by a fraction of a count but the command by many
+    times its floor shows. Without repeats the command's floor is the position's through the
+    controller's proportional gain, and the weight its inverse: the command gap counts as
+    the position error that would make it. The experiment's gap then stacks both channels,
+    and its floor is the root mean square of the two floors in position units (equal to the
+    position's: each channel is at its floor together). Without a command (or a usable
+    floor) the weight is 0 and the floors are the position's."""
+    floor, floors = floors_m(experiments, count_m)
+    if not st.command_channel or all(e.command_v is None for e in experiments):
+        return {}, floor, floors
+    gains = {n: proportional_gain_v_per_m(s) for n, s in systems.items()}
+    cmd = command_floors_v(experiments, count_m, floors, gains)
+    weights = {n: floors[n] / f for n, f in cmd.items() if f > 0.0}
+    return weights, floor, floors
 
 
 def refine_names(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
@@ -443,6 +512,7 @@ def crossfit_models(
     adapt: Adapt,
     settings: DiagnosisSettings,
     cache: SimulationCache | None = None,
+    command_weights_m_per_v: Mapping[str, float] | None = None,
 ) -> list[tuple[list[Experiment], System, System]]:
     """Cross-fitting of the nominal and the selected model over the validation experiments:
     for each fold of :func:`crossfit_folds`, both models are refitted (one local fit from
@@ -453,7 +523,8 @@ def crossfit_models(
     judged by models whose fit never saw it, fitted on nearly all the data, as a user would
     recalibrate before using the model: the gap they leave is the shrink to expect then.
     With ``cache`` (the diagnosis's), the folds' shared simulations (the first Jacobian at
-    the common warm start, on the experiments the folds have in common) are looked up."""
+    the common warm start, on the experiments the folds have in common) are looked up. The
+    fits use the command as the diagnosis did (``command_weights_m_per_v``)."""
     exps = list(train) + list(validate)
     nf = len(free)
 
@@ -481,7 +552,9 @@ def crossfit_models(
                     at += len(cand.params)
             return s
 
-        return FitProblem(params, build, training, settings.threads, adapt, cache)
+        return FitProblem(
+            params, build, training, settings.threads, adapt, cache, command_weights_m_per_v
+        )
 
     jobs = []
     for tr, judged in crossfit_folds(len(train), len(validate), k):
@@ -689,7 +762,13 @@ def _verdict(
     wtag = " (floor-weighted)" if weighted else ""
     reasons = []
     ok = True
-    if p >= st.p_value:
+    # A large explained gap: far above the floor, and most of it removed.
+    large = (
+        st.large_gap_factor > 0.0
+        and wrms0 >= st.large_gap_factor * ctx.floor
+        and weighted_shrink >= st.large_shrink
+    )
+    if p >= st.p_value and not large:
         ok = False
         reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.2f} ≥ {st.p_value}")
     if weighted_shrink <= penalty:
@@ -723,6 +802,12 @@ def _verdict(
             f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}"
             + (f"; floor-weighted {wrms0 * 1e9:.0f} → {wrms1 * 1e9:.0f} nm" if weighted else "")
             + f"), bootstrap p = {p:.3f}"
+            + (
+                f" (≥ {st.p_value}, but the gap before is {wrms0 / ctx.floor:.0f}× the noise "
+                f"floor and {weighted_shrink:.0%} of it is removed: a large explained gap)"
+                if p >= st.p_value
+                else ""
+            )
             + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
         )
     return CandidateResult(

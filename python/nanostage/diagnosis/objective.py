@@ -19,12 +19,12 @@ import itertools
 import math
 import threading
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
-from ..config import System
+from ..config import CascadeController, FpgaPid, System
 from ..experiment import Experiment
 from ..simulate import simulate_batch
 from .settings import FloatArray
@@ -34,6 +34,9 @@ __all__ = [
     "align_holds",
     "apply_gap_plan",
     "autocorrelation_time",
+    "channel_units",
+    "command_floors_v",
+    "command_plan",
     "experiment_floors_m",
     "experiment_kind",
     "floors_m",
@@ -42,6 +45,7 @@ __all__ = [
     "hold_intervals",
     "move_units",
     "noise_floor_m",
+    "proportional_gain_v_per_m",
     "rms_of",
     "simulate_reading_and_command",
     "simulate_readings_and_commands",
@@ -161,6 +165,28 @@ def apply_gap_plan(
             aligned[order] = np.sort(s[h:b])
             r[h:b] = m[h:b] - aligned
     return r
+
+
+def command_plan(plan: Sequence[HoldPlan], measured_v: npt.ArrayLike) -> list[HoldPlan]:
+    """The plan of an experiment's command gap from its position gap's (:func:`gap_plan`):
+    the same windows compared the same way (sample by sample, time-shifted after an
+    unsettled hold, as sorted values in the settled part of each hold), the sorted
+    comparison ranking the measured command's own values. A limit cycle's phase shows in
+    the command as in the position, and no model predicts it."""
+    c = np.asarray(measured_v, dtype=np.float64)
+    return [(a, h, b, aligned, np.argsort(c[h:b], kind="stable")) for a, h, b, aligned, _ in plan]
+
+
+def channel_units(r: FloatArray, n: int, units: Sequence[tuple[int, int]]) -> list[float]:
+    """Each unit's (``(start, stop)`` sample ranges of one channel of ``n`` samples) sum of
+    squares of the residual ``r``, over every channel ``r`` stacks (the position gap, then
+    the weighted command gap when the fit uses the command), divided by ``len(r)``: the
+    units' shares of the experiment's mean square (they add up to it)."""
+    k = len(r) // n if n else 1
+    return [
+        float(sum(np.sum(r[j * n + a : j * n + b] ** 2) for j in range(k))) / len(r)
+        for a, b in units
+    ]
 
 
 def _best_shift(m: FloatArray, s: FloatArray, a: int, h: int, window: int) -> FloatArray:
@@ -342,14 +368,74 @@ def _sensor_floor_var(experiments: Sequence[Experiment], count_m: float) -> floa
     return count_m**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
 
 
+def _command_sensor_var(experiments: Sequence[Experiment]) -> float:
+    """The white floor of the measured command, V²: its resolution ``Δ²/12`` (Δ the
+    smallest change between samples, :func:`_quantum`) plus the white noise estimated from
+    its second differences where the reference is at rest (the median over experiments)."""
+    noise_var = []
+    quanta = []
+    for e in experiments:
+        if e.command_v is None:
+            continue
+        quanta.append(_quantum(np.asarray(e.command_v, dtype=np.float64)))
+        rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
+        d2 = np.diff(e.command_v, 2)
+        m = rest[1:-1]
+        if np.count_nonzero(m) > 20:
+            mad = float(np.median(np.abs(d2[m] - np.median(d2[m]))))
+            noise_var.append((1.4826 * mad) ** 2 / 6.0)
+    q = float(np.median(quanta)) if quanta else 0.0
+    return q**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
+
+
+def proportional_gain_v_per_m(system: System) -> float:
+    """The controller's proportional gain, volts of command per metre of position error:
+    ``kp·output_unit_v/count`` for the FPGA PID, ``kp·kv`` for the cascade; 0 for another
+    controller."""
+    c = system.controller
+    if isinstance(c, FpgaPid):
+        return abs(c.kp * c.output_unit_v / system.encoder.count_m)
+    if isinstance(c, CascadeController):
+        return abs(c.kp_per_s * c.kv_v_s_per_m)
+    return 0.0
+
+
+def command_floors_v(
+    experiments: Sequence[Experiment],
+    count_m: float,
+    position_floors_m: Mapping[str, float],
+    gains_v_per_m: Mapping[str, float],
+) -> dict[str, float]:
+    """Each experiment's noise floor of the measured command, V: its position floor
+    (``position_floors_m``, :func:`experiment_floors_m`) through the controller's
+    proportional gain (``gains_v_per_m``, :func:`proportional_gain_v_per_m`: the command the
+    reading's noise alone makes), raised to the spread of the repeated experiments of its
+    kind compared as the command gap is, and to the command's white floor
+    (:func:`_command_sensor_var`). 0 for an experiment without a command, or whose
+    controller has no proportional path and no repeats (nothing to scale it by)."""
+    sensor = _command_sensor_var(experiments)
+    by_kind: dict[tuple[int, ...], list[float]] = {}
+    for kind, v in _repeat_spreads(experiments, count_m, command=True):
+        by_kind.setdefault(kind, []).append(v)
+    out = {}
+    for e in experiments:
+        vs = by_kind.get(experiment_kind(e.reference_m, count_m))
+        through = gains_v_per_m.get(e.name, 0.0) * position_floors_m.get(e.name, 0.0)
+        spread = math.sqrt(float(np.mean(vs))) if vs else 0.0
+        floor = max(through, spread)
+        out[e.name] = 0.0 if e.command_v is None or floor == 0.0 else max(floor, sensor**0.5)
+    return out
+
+
 def _repeat_spreads(
-    experiments: Sequence[Experiment], count_m: float
+    experiments: Sequence[Experiment], count_m: float, *, command: bool = False
 ) -> list[tuple[tuple[int, ...], float]]:
     """Half the mean-square difference of each pair of repeated experiments (the same
     reference at the same positions: the same step elsewhere on the travel is not a repeat,
     since position-dependent friction makes it differ), with the pair's kind. Measured like
     the gap itself: sample by sample, but in holds as sorted values, so a limit cycle's
-    phase (which no model predicts) is not scatter."""
+    phase (which no model predicts) is not scatter. ``command``: the spread of the measured
+    commands instead (pairs with both commands only)."""
     groups: dict[tuple[int, float], list[Experiment]] = {}
     for e in experiments:
         key = (len(e.reference_m), round(float(e.reference_m[0]) / count_m))
@@ -358,7 +444,13 @@ def _repeat_spreads(
     for g in groups.values():
         for a, b in itertools.pairwise(g):
             if np.allclose(a.reference_m, b.reference_m, rtol=0.0, atol=count_m / 10):
-                r = gap_residual(a.position_m, b.position_m, a.reference_m)
+                if command:
+                    if a.command_v is None or b.command_v is None:
+                        continue
+                    plan = command_plan(gap_plan(a.position_m, a.reference_m), a.command_v)
+                    r = apply_gap_plan(plan, a.command_v, b.command_v)
+                else:
+                    r = gap_residual(a.position_m, b.position_m, a.reference_m)
                 spreads.append(
                     (experiment_kind(a.reference_m, count_m), float(np.mean(r**2)) / 2.0)
                 )

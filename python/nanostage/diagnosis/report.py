@@ -406,6 +406,19 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
         if ex is not None:
             text += f" ({ex:.0%} of the gap above the floor explained)"
         lines.append(text)
+    un_gap = report.get("unexplained")
+    if isinstance(un_gap, Mapping) and _num(un_gap.get("gap_rms_m")) is not None:
+        parts = [
+            f"`{_md_escape(str(c.get('effect')))}` (shrink {float(c.get('shrink', 0.0)):.0%})"
+            for c in un_gap.get("partial_explanations") or []
+            if isinstance(c, Mapping) and _num(c.get("shrink")) is not None
+        ]
+        lines.append(
+            f"- **Unexplained gap** of {float(un_gap['gap_rms_m']) * 1e9:.1f} nm RMS "
+            f"({_num(un_gap.get('floor_ratio')) or 0.0:.1f}× the noise floor): no candidate "
+            "explains it by the selection rules; best partial explanations: "
+            + (", ".join(parts) if parts else "none (no candidate shrinks it)")
+        )
     folds = report.get("folds")
     if isinstance(folds, list | tuple) and folds and all(isinstance(f, Mapping) for f in folds):
         n_t = sum(len(f.get("train", [])) for f in folds)
@@ -749,6 +762,7 @@ def markdown_report(
         "folds",
         "noise_floor_rms_m",
         "unexplained_rms_m",
+        "unexplained",
         "explained_fraction",
         "timing_s",
     }

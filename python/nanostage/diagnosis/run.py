@@ -60,6 +60,7 @@ __all__ = [
     "indistinguishable",
     "model_gap",
     "ties_of_selected",
+    "unexplained_gap",
 ]
 
 #: For pairs of effects that leave similar signatures: the experiment that separates them.
@@ -95,6 +96,33 @@ DISTINGUISHING_EXPERIMENT: dict[frozenset[str], str] = {
     frozenset({"drive_compliance", "computation_delay"}): "known pulses added to the "
     "command (as in the EMPS validation run): a delay shifts the response, a flexibility "
     "filters it and rings at its resonance",
+    frozenset({"backlash", "computation_delay"}): "a slow reversal and micro-steps in both "
+    "directions: backlash loses a fixed motion at each reversal and hunts with an amplitude "
+    "of its width, a delay loses nothing at a reversal and rings at a frequency set by the "
+    "loop gain and the delay, whatever the direction",
+    frozenset({"backlash", "sensor_delay"}): "a slow reversal: backlash loses a fixed motion "
+    "at each reversal, a sensor delay loses none; the logged command leads the reading by "
+    "the delay",
+    frozenset({"backlash", "amplifier_dynamics"}): "a slow reversal and a step of the "
+    "command with the loop open: backlash loses motion at a reversal, a finite amplifier "
+    "bandwidth rounds the response to the step in either direction alike",
+    frozenset({"drive_compliance", "amplifier_dynamics"}): "a step of the command with the "
+    "loop open, and known pulses added to the command: a compliance rings at its resonance "
+    "and deflects with the force, an amplifier lag rounds the response without ringing",
+    frozenset({"sensor_delay", "amplifier_dynamics"}): "a step of the command with the loop "
+    "open, logged: a delay shifts the response by whole samples, a bandwidth rounds it",
+    frozenset({"drive_compliance", "sensor_delay"}): "known pulses added to the command: a "
+    "delay shifts the response, a flexibility filters it and rings at its resonance",
+    frozenset({"asymmetric_friction", "lugre"}): "the same slow ramps in both directions: "
+    "asymmetric friction differs by direction at every speed, a LuGre law is symmetric",
+    frozenset({"asymmetric_friction", "stribeck"}): "the same slow ramps in both directions: "
+    "asymmetric friction differs by direction at every speed, a Stribeck curve is symmetric "
+    "and changes with the speed",
+    frozenset({"offset_force", "coulomb_viscous"}): "the command at rest after moves in both "
+    "directions and constant-speed ramps at several speeds: an offset force shifts both "
+    "directions the same way, friction opposes the motion",
+    frozenset({"dwell_static_friction", "lugre"}): "the same micro-step after dwells of "
+    "0.05 s, 0.5 s and 5 s: only rising static friction depends on the dwell",
 }
 
 
@@ -316,6 +344,14 @@ def _setup(manifest: str | Path | Manifest) -> _Setup:
         if path.endswith(".coulomb_force_n")
         and _is_coulomb_viscous(nominal, path[: -len(".coulomb_force_n")])
     }
+
+    # In SI units a DC motor's torque constant (N·m/A) and back-EMF constant (V·s/rad) are
+    # one motor constant: a free torque constant carries the back-EMF constant with it when
+    # the nominal model has them equal and the back-EMF constant is not free itself.
+    for kt_path in [p for p in m.model.free if p.endswith(".torque_constant_nm_per_a")]:
+        ke_path = kt_path[: -len("torque_constant_nm_per_a")] + "back_emf_v_s_per_rad"
+        if ke_path not in m.model.free and get_path(nominal, kt_path) == get_path(nominal, ke_path):
+            tied[kt_path] = ke_path
 
     def set_free(system: System, values: Mapping[str, float]) -> System:
         if not values:
@@ -547,6 +583,7 @@ def _crossfit(
         adapt=setup.adapt,
         settings=st,
         cache=out["cache"],
+        command_weights_m_per_v=out["command_weights_m_per_v"],
     )
     # Both models of every fold in one batch: the judged experiments once with the nominal
     # refit, once with the selected one.
@@ -629,6 +666,7 @@ def assemble_report(
         "experiment_noise_floors_m": dict(out["experiment_floors_m"]),
         "kind_floors": bool(out["kind_floors"]),
         "unexplained_rms_m": math.sqrt(max(total_after**2 - floor**2, 0.0)),
+        "unexplained": unexplained_gap(before["total_rms_m"], floor, out["selected"], first, st),
         "explained_fraction": _explained(before["total_rms_m"], total_after, floor),
         "forward_selection": [
             {
@@ -658,6 +696,33 @@ def assemble_report(
         ],
         "timing_s": out["timing_s"],
         "simulations": dict(out["simulations"]),
+    }
+
+
+def unexplained_gap(
+    before_rms_m: float,
+    floor_rms_m: float,
+    selected: Sequence[str],
+    first_round: Sequence[CandidateResult],
+    st: DiagnosisSettings,
+    top: int = 3,
+) -> dict[str, Any] | None:
+    """With nothing selected while the validation gap is above
+    :attr:`DiagnosisSettings.explainable_factor` noise floors: the gap, its ratio to the
+    floor and the best ``top`` partial explanations (the round-1 candidates with a positive
+    shrink, best first, with why each was not selected); else None. The report says so
+    plainly instead of "nothing found"."""
+    if selected or not before_rms_m > st.explainable_factor * floor_rms_m:
+        return None
+    partial = [
+        {"effect": r.effect, "shrink": r.shrink, "why_not": r.reasons}
+        for r in first_round
+        if r.shrink > 0.0
+    ][:top]
+    return {
+        "gap_rms_m": before_rms_m,
+        "floor_ratio": before_rms_m / floor_rms_m if floor_rms_m > 0 else math.inf,
+        "partial_explanations": partial,
     }
 
 

@@ -59,6 +59,19 @@ class DiagnosisSettings:
     #: its own noise floor (:func:`experiment_floors_m`) instead of one floor for all.
     kind_floors: bool = True
     command_tolerance: float = 1.1
+    #: A large explained gap is never discarded: a candidate that fails only the bootstrap
+    #: (its gain concentrated in a few validation moves, which a handful of validation
+    #: experiments cannot show to be consistent) is significant all the same when the
+    #: floor-weighted gap before is at least :attr:`large_gap_factor` noise floors and the
+    #: candidate removes at least :attr:`large_shrink` of it (RMS). 0 turns the rule off.
+    large_gap_factor: float = 10.0
+    large_shrink: float = 0.6
+    #: Use the measured command (``command_v``) as a second channel of the gap when every
+    #: experiment has one: fits, noise floors and significance then weigh the command gap
+    #: against the position gap by each channel's noise floor (:func:`~.loop.command_weight`).
+    #: Friction-law effects (Stribeck, dwell-dependent breakaway, presliding shape) move the
+    #: encoder reading of a stiff loop by a fraction of a count but its command clearly.
+    command_channel: bool = True
     forward_rounds: int = 3
     forward_top: int = 8
     refine_top: int = 4

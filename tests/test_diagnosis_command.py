@@ -1,0 +1,289 @@
+"""The measured command as a second channel of the diagnosis's gap, the rule that never
+discards a large explained gap, the unexplained-gap report, the motor-constant tie and the
+benchmark's truth families."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, cast
+
+import numpy as np
+import pytest
+import tomllib
+
+from nanostage import presets
+from nanostage._core import ConfigError
+from nanostage.config import get_path, replace_paths
+from nanostage.diagnosis.benchmark import TRUTH_FAMILIES, run_benchmark
+from nanostage.diagnosis.candidates import Param
+from nanostage.diagnosis.case_manifest import UNCERTAIN_MOTOR_AND_INERTIA, case_manifest_head
+from nanostage.diagnosis.fit import FitProblem
+from nanostage.diagnosis.loop import _verdict, command_weights
+from nanostage.diagnosis.objective import (
+    apply_gap_plan,
+    channel_units,
+    command_floors_v,
+    command_plan,
+    experiment_floors_m,
+    gap_plan,
+    move_units,
+    proportional_gain_v_per_m,
+    simulate_readings_and_commands,
+)
+from nanostage.diagnosis.run import _setup, unexplained_gap
+from nanostage.diagnosis.select import CandidateResult
+from nanostage.diagnosis.settings import DiagnosisSettings
+from nanostage.diagnosis.traces import write_trace_csv
+from nanostage.experiment import Experiment
+from nanostage.simulate import simulate
+
+Q = 1e-7
+
+
+def _measured(system: Any, steps: list[float], name: str, seed: int = 1) -> Experiment:
+    """An experiment simulated by nanostage itself, with its command: holds of 0.15 s
+    between steps."""
+    ref = np.concatenate(
+        [np.full(150, 2e-3 + Q / 3 + sum(steps[:k])) for k in range(len(steps) + 1)]
+    )
+    tr = simulate(system, ref, seed=seed, initial_position_m=2e-3 + Q / 3)
+    return Experiment(
+        name=name,
+        time_s=tr.time_s,
+        reference_m=ref,
+        position_m=tr.encoder_position_m,
+        command_v=tr.command * tr.output_unit_v,
+    )
+
+
+def test_proportional_gain_by_hand() -> None:
+    s = presets.seed(100e-6)
+    # Table 1: kp = 450 output units of 1e-4 V per 100 nm count.
+    assert s.controller.kp == 450.0
+    assert proportional_gain_v_per_m(s) == pytest.approx(450.0 * 1e-4 / 1e-7, rel=1e-12)
+
+
+def test_command_plan_compares_the_same_windows_and_ignores_a_limit_cycles_phase() -> None:
+    n = 400
+    ref = np.r_[np.zeros(100), np.full(n - 100, 1e-6)]
+    pos = np.r_[np.zeros(100), np.linspace(0, 1e-6, 20), np.full(n - 120, 1e-6)]
+    pos[150:] += 1e-7 * np.sign(np.sin(np.arange(n - 150) / 3.0))
+    cmd = np.r_[np.zeros(100), np.full(20, 6.0), 0.1 * np.sin(np.arange(n - 120) / 3.0)]
+    plan = gap_plan(pos, ref)
+    cplan = command_plan(plan, cmd)
+    assert [p[:4] for p in cplan] == [p[:4] for p in plan]
+    # The same command: no gap. The oscillation in the hold shifted in phase: no gap there
+    # either (sorted values), but a change of its amplitude shows.
+    assert np.all(apply_gap_plan(cplan, cmd, cmd) == 0.0)
+    (_, h, b, _, _) = plan[-1]
+    shifted = cmd.copy()
+    shifted[h:b] = np.roll(cmd[h:b], 7)
+    assert np.max(np.abs(apply_gap_plan(cplan, cmd, shifted)[h:b])) < 1e-12
+    bigger = cmd.copy()
+    bigger[h:b] *= 1.5
+    assert np.max(np.abs(apply_gap_plan(cplan, cmd, bigger)[h:b])) > 0.04
+
+
+def test_channel_units_add_up_to_the_stacked_mean_square() -> None:
+    rng = np.random.default_rng(3)
+    ref = np.r_[np.zeros(60), np.ones(60), np.full(60, 2.0)]
+    units = move_units(ref)
+    r = rng.normal(size=2 * len(ref))
+    shares = channel_units(r, len(ref), units)
+    assert len(shares) == len(units)
+    assert sum(shares) == pytest.approx(float(np.mean(r**2)), rel=1e-12)
+    # One channel: the shares of the position gap alone.
+    one = channel_units(r[: len(ref)], len(ref), units)
+    assert sum(one) == pytest.approx(float(np.mean(r[: len(ref)] ** 2)), rel=1e-12)
+
+
+def test_command_floor_is_the_position_floor_through_the_proportional_gain() -> None:
+    s = presets.seed(100e-6)
+    a = _measured(s, [100e-6], "a", seed=1)
+    b = _measured(s, [-100e-6], "b", seed=2)
+    exps = [a, b]
+    pos = experiment_floors_m(exps, Q)
+    gain = proportional_gain_v_per_m(s)
+    floors = command_floors_v(exps, Q, pos, {"a": gain, "b": gain})
+    # No repeats: the position floor (quantisation) through the gain, far above the
+    # command's resolution.
+    assert floors["a"] == pytest.approx(gain * pos["a"], rel=1e-12)
+    assert floors["a"] == pytest.approx(gain * Q / math.sqrt(12.0), rel=1e-3)
+    # No proportional path and no repeats: no floor, so the command is not used.
+    assert command_floors_v(exps, Q, pos, {"a": 0.0, "b": gain})["a"] == 0.0
+    # A repeat of the same reference raises the floor of its kind to the repeats' spread
+    # (the repeat with another friction level, as trial-to-trial scatter gives).
+    a2 = _measured(replace_paths(s, {"plant.dahl.coulomb_force_n": 31.5}), [100e-6], "a2")
+    rep = [a, a2]
+    rep_pos = experiment_floors_m(rep, Q)
+    rep_floor = command_floors_v(rep, Q, rep_pos, {"a": 0.0, "a2": 0.0})
+    plan = command_plan(gap_plan(a.position_m, a.reference_m), cast(np.ndarray, a.command_v))
+    spread = math.sqrt(
+        float(np.mean(apply_gap_plan(plan, cast(np.ndarray, a.command_v), a2.command_v) ** 2)) / 2.0
+    )
+    assert spread > 0.0 and rep_floor["a"] == pytest.approx(spread, rel=1e-9)
+
+
+def test_command_weights_and_the_stacked_gap() -> None:
+    s = presets.seed(100e-6)
+    exps = [_measured(s, [100e-6], "a", seed=1), _measured(s, [-100e-6, 100e-6], "b", seed=2)]
+    systems = {e.name: s for e in exps}
+    st = DiagnosisSettings()
+    weights, floor, floors = command_weights(exps, systems, Q, st)
+    gain = proportional_gain_v_per_m(s)
+    assert set(weights) == {"a", "b"}
+    assert weights["a"] == pytest.approx(1.0 / gain, rel=1e-12)
+    assert floor == experiment_floors_m(exps, Q)["a"] == floors["b"]
+    off, _, _ = command_weights(exps, systems, Q, dc.replace(st, command_channel=False))
+    assert off == {}
+    without = [dc.replace(e, command_v=None) for e in exps]
+    assert command_weights(without, systems, Q, st)[0] == {}
+
+    name = "plant.dahl.coulomb_force_n"
+    free = [(name, Param(name=name, unit="N", lower=20.0, upper=40.0, initial=30.4))]
+
+    def build(v: Any) -> Any:
+        return replace_paths(s, {name: v[0]})
+
+    plain = FitProblem(free, build, exps, 1, lambda x, e: x)
+    stacked = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights)
+    other = build([33.0])
+    r0 = plain.residuals(other, exps)
+    r1 = stacked.residuals(other, exps)
+    for e, p, c in zip(exps, r0, r1, strict=True):
+        n = len(e.time_s)
+        assert len(p) == n and len(c) == 2 * n
+        assert np.array_equal(c[:n], p)  # the position part is the position gap, bit for bit
+        ((_, sim_cmd),) = simulate_readings_and_commands([other], [e])
+        measured = cast(np.ndarray, e.command_v)
+        plan = command_plan(gap_plan(e.position_m, e.reference_m), measured)
+        expect = weights[e.name] * apply_gap_plan(plan, measured, sim_cmd)
+        assert np.array_equal(c[n:], expect)
+    # The model that made the data leaves only what noise and quantisation make.
+    assert max(float(np.max(np.abs(r))) for r in stacked.residuals(s, exps)) < 1e-6
+
+
+def _ns_ctx(floor: float, st: DiagnosisSettings) -> Any:
+    return SimpleNamespace(
+        st=st, floor=floor, n_validation=4, validation_weights=np.ones(4), weights={}
+    )
+
+
+def test_a_large_explained_gap_is_not_discarded_for_want_of_validation_moves() -> None:
+    fit = cast(Any, SimpleNamespace(values={}, std_errors={}, train_rms_m=1e-7))
+    base = np.array([100.0, 1.0, 1.0, 1.0]) * 1e-14
+    after = np.array([10.0, 1.0, 1.0, 1.0]) * 1e-14
+    st = DiagnosisSettings()
+
+    def judge(floor: float, settings: DiagnosisSettings) -> CandidateResult:
+        return _verdict(
+            "backlash",
+            [fit],
+            after,
+            [None] * 4,
+            None,
+            2,
+            base,
+            [None] * 4,
+            _ns_ctx(floor, settings),
+            0,
+            after,
+            base,
+        )
+
+    # All the gain is in one of four validation experiments: the bootstrap cannot show it
+    # consistent (p = (3/4)^4 ≈ 0.32), but the gap is 50× the floor and 64 % of it goes.
+    r = judge(1e-8, st)
+    assert r.p_value >= st.p_value
+    assert r.shrink == pytest.approx(1.0 - math.sqrt(13.0 / 103.0), rel=1e-12)
+    assert r.significant and "large explained gap" in r.reasons[-1]
+    # The rule off, or a gap only 5× the floor: the bootstrap decides, and says why.
+    for floor, settings in ((1e-8, dc.replace(st, large_gap_factor=0.0)), (1e-7, st)):
+        r = judge(floor, settings)
+        assert not r.significant and "bootstrap" in r.reasons[0]
+    # A smaller share removed is no large explained gap.
+    r = judge(1e-8, dc.replace(st, large_shrink=0.7))
+    assert not r.significant
+
+
+def test_unexplained_gap_names_the_best_partial_explanations() -> None:
+    st = DiagnosisSettings()
+
+    def res(name: str, shrink: float) -> CandidateResult:
+        return cast(CandidateResult, SimpleNamespace(effect=name, shrink=shrink, reasons=["x"]))
+
+    first = [res("offset_force", 0.46), res("amplifier_dynamics", 0.26), res("lugre", -0.1)]
+    u = unexplained_gap(290e-9, 29e-9, [], first, st)
+    assert u is not None and u["floor_ratio"] == pytest.approx(10.0)
+    assert [c["effect"] for c in u["partial_explanations"]] == [
+        "offset_force",
+        "amplifier_dynamics",
+    ]
+    assert unexplained_gap(290e-9, 29e-9, ["offset_force"], first, st) is None
+    assert unexplained_gap(40e-9, 29e-9, [], first, st) is None
+
+
+def test_a_free_torque_constant_carries_the_back_emf_constant(tmp_path: Path) -> None:
+    s = presets.seed(100e-6)
+    e = _measured(s, [100e-6], "a")
+    write_trace_csv(e, tmp_path / "a.csv")
+    write_trace_csv(_measured(s, [-100e-6], "b", seed=2), tmp_path / "b.csv")
+    kt = "plant.motor.torque_constant_nm_per_a"
+    (tmp_path / "m.toml").write_text(
+        "\n".join(
+            [
+                "[model]",
+                'preset = "seed"',
+                f'free = ["{kt}"]',
+                "[[experiment]]",
+                'name = "a"',
+                'file = "a.csv"',
+                'role = "train"',
+                "[[experiment]]",
+                'name = "b"',
+                'file = "b.csv"',
+                'role = "validate"',
+            ]
+        ),
+        encoding="utf-8",
+    )
+    setup = _setup(tmp_path / "m.toml")
+    moved = setup.set_free(setup.nominal, {kt: 7.1e-3})
+    assert get_path(moved, kt) == 7.1e-3
+    assert get_path(moved, "plant.motor.back_emf_v_s_per_rad") == 7.1e-3
+    assert moved.plant.motor.resistance_ohm == setup.nominal.plant.motor.resistance_ohm
+
+
+def test_case_manifest_head_frees_the_uncertain_parameters() -> None:
+    plain = tomllib.loads("\n".join(case_manifest_head(30.4, 1.2e-4, 1e-4, 5)))
+    assert plain["model"]["free"] == [
+        "plant.dahl.coulomb_force_n",
+        "plant.motor_friction.static_torque_nm",
+        "plant.motor_friction.coulomb_torque_nm",
+    ]
+    assert plain["model"]["bounds"]["plant.dahl.coulomb_force_n"] == pytest.approx(
+        [0.6 * 30.4, 1.5 * 30.4]
+    )
+    s = presets.seed(100e-6)
+    also = {p: (get_path(s, p), lo, hi) for p, (lo, hi) in UNCERTAIN_MOTOR_AND_INERTIA.items()}
+    wide = tomllib.loads("\n".join(case_manifest_head(30.4, 1.2e-4, 1e-4, 5, also_free=also)))
+    assert wide["model"]["free"][3:] == list(UNCERTAIN_MOTOR_AND_INERTIA)
+    for p, (lo, hi) in UNCERTAIN_MOTOR_AND_INERTIA.items():
+        v = get_path(s, p)
+        assert wide["model"]["bounds"][p] == pytest.approx([lo * v, hi * v])
+        assert wide["model"]["bounds"][p][0] < v < wide["model"]["bounds"][p][1]
+
+
+def test_benchmark_checks_its_truth_family_before_any_work(tmp_path: Path) -> None:
+    assert TRUTH_FAMILIES == ("own", "independent")
+    with pytest.raises(ConfigError, match="truth = 'mujoco'"):
+        run_benchmark(tmp_path / "x", truth="mujoco")
+    # A hidden effect the independent family does not draw.
+    with pytest.raises(ConfigError, match="truth family 'independent'"):
+        run_benchmark(tmp_path / "x", truth="independent", hidden=["computation_delay"])
+    with pytest.raises(ConfigError, match="truth family 'own'"):
+        run_benchmark(tmp_path / "x", hidden=["amplifier_dynamics"])
+    assert not (tmp_path / "x").exists()
