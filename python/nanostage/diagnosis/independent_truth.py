@@ -30,9 +30,10 @@ differs from nanostage's own truth and candidates:
 CSV traces with ``command_v``, a ``truth.json`` naming the hidden effect and its
 parameters), which ``nanostage diagnose`` reads.
 
-Seed-preset numbers copied below come from ``nanostage.presets.seed`` (the Rust core's
-``seed_values``, provenance in ``nanostage.presets.SEED_PROVENANCE``) and the Table 1 gains
-from ``nanostage.presets.table1_gains``.
+Seed-preset numbers copied below come from the shipped seed model file
+(``nanostage/model_files/seed.model.toml``, read by ``nanostage.presets.seed``, sources in
+its provenance) and the Table 1 gains from ``nanostage.presets.table1_gains``; a test checks
+the copies against the preset.
 """
 
 from __future__ import annotations
