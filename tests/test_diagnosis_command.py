@@ -27,13 +27,15 @@ from nanostage.diagnosis.objective import (
     channel_units,
     command_floors_v,
     command_plan,
+    command_problems,
     experiment_floors_m,
     gap_plan,
     move_units,
+    output_limit_v,
     proportional_gain_v_per_m,
     simulate_readings_and_commands,
 )
-from nanostage.diagnosis.run import _setup, unexplained_gap
+from nanostage.diagnosis.run import _setup, experiment_advice, unexplained_gap
 from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.settings import DiagnosisSettings
 from nanostage.diagnosis.traces import write_trace_csv
@@ -287,3 +289,58 @@ def test_benchmark_checks_its_truth_family_before_any_work(tmp_path: Path) -> No
     with pytest.raises(ConfigError, match="truth family 'own'"):
         run_benchmark(tmp_path / "x", hidden=["amplifier_dynamics"])
     assert not (tmp_path / "x").exists()
+
+
+def test_bad_commands_are_named_before_any_fitting(tmp_path: Path) -> None:
+    s = presets.seed(100e-6)
+    good = _measured(s, [100e-6], "a")
+    n = len(good.time_s)
+    limit = output_limit_v(s)
+    assert limit == pytest.approx(6.0)
+    constant = dc.replace(_measured(s, [-100e-6], "b", seed=2), command_v=np.full(n, 0.2))
+    clipped_v = np.where(np.arange(n) % 4 == 0, 0.0, 6.0)
+    clipped = dc.replace(_measured(s, [100e-6], "c", seed=3), command_v=clipped_v)
+    systems = {e.name: s for e in (good, constant, clipped)}
+    errors, warnings = command_problems([good, constant, clipped], systems)
+    assert errors == []
+    assert set(warnings) == {"b", "c"}
+    assert "'b'" in warnings["b"] and "constant (0.2 V)" in warnings["b"]
+    assert "'c'" in warnings["c"] and "75%" in warnings["c"] and "±6 V" in warnings["c"]
+    weights, _, _ = command_weights([good, constant, clipped], systems, Q, DiagnosisSettings())
+    assert set(weights) == {"a"}
+    # Millivolts: an error naming the experiment, the value and the limit, raised by the
+    # manifest's set-up before any fitting.
+    mv = dc.replace(good, command_v=cast(np.ndarray, good.command_v) * 1e3)
+    errors, _ = command_problems([mv], {"a": s})
+    assert len(errors) == 1 and "'a'" in errors[0] and "millivolts" in errors[0]
+    write_trace_csv(mv, tmp_path / "a.csv")
+    write_trace_csv(_measured(s, [-100e-6], "b", seed=2), tmp_path / "b.csv")
+    (tmp_path / "m.toml").write_text(
+        '[model]\npreset = "seed"\n'
+        '[[experiment]]\nname = "a"\nfile = "a.csv"\nrole = "train"\n'
+        '[[experiment]]\nname = "b"\nfile = "b.csv"\nrole = "validate"\n',
+        encoding="utf-8",
+    )
+    with pytest.raises(ConfigError, match=r"experiment 'a' .*command_v reaches .* ±6 V"):
+        _setup(tmp_path / "m.toml")
+
+
+def test_advice_asks_for_the_command_ramps_and_micro_steps() -> None:
+    s = presets.seed(100e-6)
+    plain = [dc.replace(_measured(s, [100e-6, -100e-6], "a"), command_v=None)]
+    issues = " ".join(a["issue"] for a in experiment_advice(plain, 2e-3, [], 0.05))
+    assert "command_v" in issues and "ramps" in issues and "micro-step" in issues
+    # Ramps at three speeds, a micro-step and the command: none of the three.
+    t = np.arange(3000) * 1e-3
+    ref = np.full(3000, 2e-3)
+    ref[100:600] = 2e-3 + 20e-6 * (t[100:600] - t[99])
+    ref[600:] = ref[599]
+    ref[800:900] = ref[799] + 200e-6 * (t[800:900] - t[799])
+    ref[900:] = ref[899]
+    ref[1000:1040] = ref[999] + 1e-3 * (t[1000:1040] - t[999])
+    ref[1040:] = ref[1039] + 3e-7
+    ramps = Experiment(
+        name="r", time_s=t, reference_m=ref, position_m=np.round(ref / Q) * Q, command_v=t
+    )
+    issues = " ".join(a["issue"] for a in experiment_advice([ramps], 2e-3, [], 0.05))
+    assert "command_v" not in issues and "ramps" not in issues and "micro-step" not in issues

@@ -99,7 +99,7 @@ class FitProblem:
         self, system: System, experiments: Sequence[Experiment]
     ) -> tuple[list[FloatArray], list[float | None]]:
         """:meth:`residuals`, and each experiment's mean-square command residual (V², None
-        where the experiment has no measured command)."""
+        where the experiment has no measured command or the gap uses it already)."""
         return self._simulate([system], experiments)[0]
 
     def residuals_of(
@@ -136,8 +136,12 @@ class FitProblem:
                         ]
                     )
                 gaps.append(gap)
+                # The command's own check (a channel the fit does not use); None where the
+                # command is part of the gap already.
                 command.append(
-                    None if e.command_v is None else float(np.mean((e.command_v - cmd) ** 2))
+                    None
+                    if e.command_v is None or self._uses_command(e)
+                    else float(np.mean((e.command_v - cmd) ** 2))
                 )
             out.append((gaps, command))
         return out

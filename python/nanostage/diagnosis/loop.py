@@ -22,6 +22,7 @@ from .objective import (
     SimulationCache,
     channel_units,
     command_floors_v,
+    command_problems,
     floors_m,
     move_units,
     proportional_gain_v_per_m,
@@ -151,7 +152,8 @@ class _Ctx:
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
-        command residual of each validation experiment (None without a measured command),
+        command residual of each validation experiment (None without a measured command, or
+        where the command is part of the gap),
         and each validation move's share of its experiment's mean square (:func:`move_units`;
         they sum to the experiment's)."""
         fits, ms, residuals = [], [], []
@@ -428,16 +430,19 @@ def command_weights(
     a friction law that moves the position by a fraction of a count but the command by many
     times its floor shows. Without repeats the command's floor is the position's through the
     controller's proportional gain, and the weight its inverse: the command gap counts as
-    the position error that would make it. The experiment's gap then stacks both channels,
-    and its floor is the root mean square of the two floors in position units (equal to the
-    position's: each channel is at its floor together). Without a command (or a usable
-    floor) the weight is 0 and the floors are the position's."""
+    the position error that would make it. A constant command, or one clipped at the rails
+    for most of the experiment (:func:`command_problems`), is left out. The experiment's gap
+    then stacks both channels, and its floor is the root mean square of the two floors in
+    position units (equal to the position's: each channel is at its floor together).
+    Without a command (or a usable floor) the weight is 0 and the floors are the
+    position's."""
     floor, floors = floors_m(experiments, count_m)
     if not st.command_channel or all(e.command_v is None for e in experiments):
         return {}, floor, floors
     gains = {n: proportional_gain_v_per_m(s) for n, s in systems.items()}
     cmd = command_floors_v(experiments, count_m, floors, gains)
-    weights = {n: floors[n] / f for n, f in cmd.items() if f > 0.0}
+    _, unusable = command_problems(experiments, systems)
+    weights = {n: floors[n] / f for n, f in cmd.items() if f > 0.0 and n not in unusable}
     return weights, floor, floors
 
 

@@ -37,6 +37,7 @@ __all__ = [
     "channel_units",
     "command_floors_v",
     "command_plan",
+    "command_problems",
     "experiment_floors_m",
     "experiment_kind",
     "floors_m",
@@ -45,7 +46,9 @@ __all__ = [
     "hold_intervals",
     "move_units",
     "noise_floor_m",
+    "output_limit_v",
     "proportional_gain_v_per_m",
+    "reading_quantum",
     "rms_of",
     "simulate_reading_and_command",
     "simulate_readings_and_commands",
@@ -91,8 +94,9 @@ def move_units(reference_m: npt.ArrayLike) -> list[tuple[int, int]]:
     return list(itertools.pairwise(bounds))
 
 
-def _quantum(m: FloatArray) -> float:
-    d = np.abs(np.diff(m))
+def reading_quantum(m: npt.ArrayLike) -> float:
+    """The smallest change between samples of a reading: one count for encoder data."""
+    d = np.abs(np.diff(np.asarray(m, dtype=np.float64)))
     d = d[d > 0]
     # The 5th percentile of the nonzero changes: one count for encoder data however fast
     # the axis moves, the noise level for a continuous sensor.
@@ -134,7 +138,7 @@ def gap_plan(measured_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> list[Hold
     ref = np.asarray(reference_m, dtype=np.float64)
     if ref.size == 0 or np.all(ref == ref[0]):
         return []
-    q = _quantum(m)
+    q = reading_quantum(m)
     plan: list[HoldPlan] = []
     unsettled = False
     for a, b in hold_intervals(ref):
@@ -370,14 +374,14 @@ def _sensor_floor_var(experiments: Sequence[Experiment], count_m: float) -> floa
 
 def _command_sensor_var(experiments: Sequence[Experiment]) -> float:
     """The white floor of the measured command, V²: its resolution ``Δ²/12`` (Δ the
-    smallest change between samples, :func:`_quantum`) plus the white noise estimated from
+    smallest change between samples, :func:`reading_quantum`) plus the white noise estimated from
     its second differences where the reference is at rest (the median over experiments)."""
     noise_var = []
     quanta = []
     for e in experiments:
         if e.command_v is None:
             continue
-        quanta.append(_quantum(np.asarray(e.command_v, dtype=np.float64)))
+        quanta.append(reading_quantum(np.asarray(e.command_v, dtype=np.float64)))
         rest = np.r_[False, np.diff(e.reference_m) == 0] & np.r_[np.diff(e.reference_m) == 0, False]
         d2 = np.diff(e.command_v, 2)
         m = rest[1:-1]
@@ -386,6 +390,66 @@ def _command_sensor_var(experiments: Sequence[Experiment]) -> float:
             noise_var.append((1.4826 * mad) ** 2 / 6.0)
     q = float(np.median(quanta)) if quanta else 0.0
     return q**2 / 12.0 + (float(np.median(noise_var)) if noise_var else 0.0)
+
+
+#: A measured command is *clipped* when it sits at its rails (within 1 % of the largest
+#: magnitude it reaches, that magnitude within 2 % of the controller's output limit) for
+#: more than this share of its samples.
+CLIPPED_SHARE = 0.5
+#: A measured command reaching more than this many times the controller's output limit is
+#: in the wrong unit (millivolts: 1000×).
+WRONG_UNIT_FACTOR = 10.0
+
+
+def output_limit_v(system: System) -> float | None:
+    """The largest command the controller can give, V (None for another controller)."""
+    c = system.controller
+    if isinstance(c, FpgaPid):
+        return max(abs(c.output_min), abs(c.output_max)) * c.output_unit_v
+    if isinstance(c, CascadeController):
+        return abs(c.saturation_v)
+    return None
+
+
+def command_problems(
+    experiments: Sequence[Experiment], systems: Mapping[str, System]
+) -> tuple[list[str], dict[str, str]]:
+    """Checks of the measured commands before any fitting: the errors (a command beyond
+    :data:`WRONG_UNIT_FACTOR` times the controller's output limit: in the wrong unit), and
+    the warnings by experiment name (a constant command, or one clipped at the rails for
+    most of the experiment, :data:`CLIPPED_SHARE`: such a command tells nothing of the
+    plant, and the gap leaves it out). Each message names the experiment, its source, the
+    value and the valid range."""
+    errors: list[str] = []
+    warnings: dict[str, str] = {}
+    for e in experiments:
+        if e.command_v is None:
+            continue
+        c = np.asarray(e.command_v, dtype=np.float64)
+        where = f"experiment {e.name!r}" + (f" ({e.source})" if e.source else "")
+        peak = float(np.max(np.abs(c))) if c.size else 0.0
+        limit = output_limit_v(systems[e.name]) if e.name in systems else None
+        if limit is not None and peak > WRONG_UNIT_FACTOR * limit:
+            errors.append(
+                f"{where}: command_v reaches {peak:.6g} V, beyond {WRONG_UNIT_FACTOR:g}× the "
+                f"controller's output limit of ±{limit:.6g} V: the command must be in volts "
+                "(in millivolts, divide by 1000)"
+            )
+        elif c.size == 0 or float(np.ptp(c)) == 0.0:
+            warnings[e.name] = (
+                f"{where}: command_v is constant ({c[0] if c.size else 0.0:.6g} V): it tells "
+                "nothing of the plant and is left out of the gap"
+            )
+        elif limit is not None and peak >= 0.98 * limit:
+            share = float(np.mean(np.abs(c) >= 0.99 * peak))
+            if share > CLIPPED_SHARE:
+                warnings[e.name] = (
+                    f"{where}: command_v sits at the rails (±{peak:.6g} V, output limit "
+                    f"±{limit:.6g} V) for {share:.0%} of the samples (more than "
+                    f"{CLIPPED_SHARE:.0%}): it tells little of the plant and is left out of "
+                    "the gap; record moves the amplifier can follow"
+                )
+    return errors, warnings
 
 
 def proportional_gain_v_per_m(system: System) -> float:

@@ -600,6 +600,10 @@ def markdown_report(
             "the model behind the gap after; load it with `nanostage.load_model` or pass it "
             "as `--model` (docs/model-file.md).\n"
         )
+    warns = report.get("warnings")
+    if isinstance(warns, list | tuple) and warns:
+        out.append("## Warnings\n")
+        out.append("\n".join(f"- {_md_escape(str(w))}" for w in warns) + "\n")
     if isinstance(report.get("advice"), list | tuple):
         out.append("## Experiment advice\n")
         out.append(_advice(report["advice"]))
@@ -763,6 +767,7 @@ def markdown_report(
         "noise_floor_rms_m",
         "unexplained_rms_m",
         "unexplained",
+        "warnings",
         "explained_fraction",
         "timing_s",
     }

@@ -45,7 +45,13 @@ from .fit import Fit
 from .gap import analyse_gap
 from .loop import crossfit_models, diagnose_experiments
 from .manifest import Manifest, load_manifest
-from .objective import SimulationCache, align_holds, simulate_readings_and_commands
+from .objective import (
+    SimulationCache,
+    align_holds,
+    command_problems,
+    reading_quantum,
+    simulate_readings_and_commands,
+)
 from .report import write_report
 from .segments import segment
 from .select import CandidateResult, indistinguishable
@@ -236,6 +242,52 @@ def experiment_advice(
                 "experiment": "repeat one experiment 3–5 times",
             }
         )
+    if all(e.command_v is None for e in experiments):
+        advice.append(
+            {
+                "effects": [
+                    "stribeck",
+                    "lugre",
+                    "gms",
+                    "dwell_static_friction",
+                    "asymmetric_friction",
+                    "offset_force",
+                ],
+                "issue": "no experiment has the controller's output (command_v): in a stiff "
+                "position loop friction-law effects move the encoder reading by a fraction of "
+                "a count but the command clearly, and the command at rest in each direction "
+                "tells an offset force from asymmetric friction",
+                "experiment": "log the controller output with the position (command_v, in volts)",
+            }
+        )
+    speeds = [s for e in experiments for s in _ramp_speeds(e)]
+    if not speeds or max(speeds) < 3.0 * min(speeds):
+        advice.append(
+            {
+                "effects": ["stribeck", "lugre", "coulomb_viscous", "asymmetric_friction"],
+                "issue": "no constant-velocity ramps at several speeds"
+                + (
+                    f" (ramps at {min(speeds) * 1e6:.3g}–{max(speeds) * 1e6:.3g} µm/s only)"
+                    if speeds
+                    else ""
+                )
+                + ": the friction curve against speed is not seen",
+                "experiment": "slow ramps out and back (a reversal) at three speeds from tens "
+                "of µm/s to about 1 mm/s, with the command logged",
+            }
+        )
+    sizes = [abs(m[2]) for m in moves if m[2] != 0]
+    count = _count(experiments)
+    if count is not None and (not sizes or min(sizes) > 10.0 * count):
+        advice.append(
+            {
+                "effects": ["dwell_static_friction", "lugre", "gms", "dahl"],
+                "issue": "no micro-step of a few encoder counts: breakaway and presliding "
+                "are not seen",
+                "experiment": "micro-steps of 3–5 counts after dwells of 0.05 s, 0.3 s and "
+                "1.5 s, in both directions",
+            }
+        )
     good = [r for r in results if r.shrink > penalty]
     for i, a in enumerate(good):
         for b in good[i + 1 :]:
@@ -255,6 +307,30 @@ def experiment_advice(
                     }
                 )
     return advice
+
+
+def _ramp_speeds(e: Experiment, min_samples: int = 20) -> list[float]:
+    """Speeds of the constant-velocity stretches of the reference (at least ``min_samples``
+    samples of the same non-zero increment, to 1 ppm), m/s."""
+    d = np.diff(np.asarray(e.reference_m, dtype=np.float64))
+    out = []
+    k = 0
+    while k < len(d):
+        j = k
+        while j + 1 < len(d) and d[k] != 0.0 and abs(d[j + 1] - d[k]) <= 1e-6 * abs(d[k]):
+            j += 1
+        if d[k] != 0.0 and j - k + 1 >= min_samples:
+            out.append(abs(float(d[k])) / e.sample_period_s)
+        k = j + 1
+    return out
+
+
+def _count(experiments: Sequence[Experiment]) -> float | None:
+    """The encoder count from the readings (:func:`~.objective.reading_quantum`, the median
+    over experiments), None if no reading changes."""
+    q = [reading_quantum(e.position_m) for e in experiments]
+    q = [v for v in q if v > 0.0]
+    return float(np.median(q)) if q else None
 
 
 def _gap(
@@ -295,6 +371,8 @@ class _Setup:
     folds: list[tuple[list[Experiment], list[Experiment]]]
     adapt: Callable[[System, Experiment], System]
     set_free: Callable[[System, Mapping[str, float]], System]
+    #: Warnings about the measured commands, by experiment name (:func:`command_problems`).
+    warnings: Mapping[str, str]
 
 
 def _setup(manifest: str | Path | Manifest) -> _Setup:
@@ -364,7 +442,12 @@ def _setup(manifest: str | Path | Manifest) -> _Setup:
         return out
 
     folds = [([by_name[n] for n in f.train], [by_name[n] for n in f.validate]) for f in m.splits()]
-    return _Setup(m, nominal, free, folds, adapt, set_free)
+    errors, warnings = command_problems(
+        list(by_name.values()), {n: adapt(nominal, e) for n, e in by_name.items()}
+    )
+    if errors:
+        raise ConfigError(f"{m.path}: " + "; ".join(errors))
+    return _Setup(m, nominal, free, folds, adapt, set_free, warnings)
 
 
 def diagnose(
@@ -390,6 +473,8 @@ def diagnose(
     st = settings or DiagnosisSettings(seed=m.diagnosis.seed)
     names = [c for c in m.diagnosis.candidates if c in CANDIDATES]
     cands, _ = applicable_candidates(nominal, names)
+    for w in setup.warnings.values():
+        print_progress(f"warning: {w}", progress)
     out = diagnose_experiments(
         nominal,
         free,
@@ -403,6 +488,7 @@ def diagnose(
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
     report["crossfit"] = _crossfit(setup, out, st, _lead(nominal), progress)
     report["manifest"] = str(m.path if manifest_path is None else manifest_path)
+    report["warnings"] = list(setup.warnings.values())
     written = None
     if out_dir is not None:
         val = _validation_order(folds)
