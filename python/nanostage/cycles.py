@@ -54,6 +54,7 @@ import numpy.typing as npt
 
 from . import iso230_2
 from ._core import ConfigError
+from .checks import int_arg
 from .simulate import MAX_SAMPLES
 
 __all__ = [
@@ -135,13 +136,6 @@ def _in_range(
         lo_s = lo_text if lo_text is not None else f"{lo:g}"
         valid = f"{'(' if lo_open else '['}{lo_s}, {hi:g}{')' if hi_open else ']'} {unit}".rstrip()
         raise _outside(name, value, valid)
-    return v
-
-
-def _int_in_range(name: str, value: object, lo: int, hi: int) -> int:
-    v = _integer(name, value)
-    if not lo <= v <= hi:
-        raise _outside(name, value, f"[{lo}, {hi}]")
     return v
 
 
@@ -817,8 +811,12 @@ def standard_test_cycle(
             "travel_m", travel_m, f"[1e-06, {MAX_POSITION_M - start:g}] m for start_m = {start:g}"
         )
     n_min = min_targets(travel)
-    n = n_min if n_targets is None else _int_in_range("n_targets", n_targets, n_min, MAX_N_TARGETS)
-    n_runs = _int_in_range("runs", runs, iso230_2.MIN_RUNS, 10_000)
+    n = (
+        n_min
+        if n_targets is None
+        else int_arg("n_targets", n_targets, n_min, MAX_N_TARGETS, wording="outside")
+    )
+    n_runs = int_arg("runs", runs, iso230_2.MIN_RUNS, 10_000, wording="outside")
     overrun = _in_range("overrun_m", overrun_m, 0.0, travel, "m", lo_open=True)
     move = _check_move(move)
     seed_value = _integer("seed", seed)
@@ -939,7 +937,7 @@ def step_cycle(
     """
     t, dwell, start = _check_common(sample_period_s, dwell_s, start_m)
     step = _in_range("step_m", step_m, 0.0, 1.0, "m", lo_open=True)
-    n_repeats = _int_in_range("repeats", repeats, iso230_2.MIN_RUNS, MAX_SAMPLES)
+    n_repeats = int_arg("repeats", repeats, iso230_2.MIN_RUNS, MAX_SAMPLES, wording="outside")
     back_s = _in_range(
         "return_s", return_s, t, MAX_DWELL_S, "s", lo_text=f"sample_period_s = {t:g}"
     )

@@ -51,6 +51,7 @@ from scipy.optimize import brentq
 
 from .._core import ConfigError
 from ..campaign import MAX_THREADS, MAX_TRIALS, CampaignResult, run_campaign
+from ..checks import int_arg
 from ..config import System
 from ..cycles import Cycle, step_cycle
 from ..effects import Backlash, StochasticFriction
@@ -131,9 +132,9 @@ class CampaignSettings:
                 f"CampaignSettings.backlash_width_m = {w!r} is invalid: expected a width in "
                 f"[0, {MAX_BACKLASH_M:g}] m (0: no backlash)"
             )
-        _check_int("n_trials", self.n_trials, 1, MAX_TRIALS)
-        _check_int("seed", self.seed, 0, 2**64 - 1)
-        _check_int("repeats", self.repeats, 1, 2**31 - 1)
+        int_arg("CampaignSettings.n_trials", self.n_trials, 1, MAX_TRIALS, strict=True)
+        int_arg("CampaignSettings.seed", self.seed, 0, 2**64 - 1, strict=True)
+        int_arg("CampaignSettings.repeats", self.repeats, 1, 2**31 - 1, strict=True)
         spreads = self.spreads
         if (
             not isinstance(spreads, tuple)
@@ -155,13 +156,6 @@ class CampaignSettings:
         # The cycle's own checks (dwell and return times, total length), before any work.
         for step in (CALIBRATION_STEP_M, PREDICTION_STEP_M):
             _cycle(step, self)
-
-
-def _check_int(name: str, value: object, lo: int, hi: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ConfigError(
-            f"CampaignSettings.{name} = {value!r} is invalid: expected an integer in [{lo}, {hi}]"
-        )
 
 
 def check_threads(threads: int | None) -> None:
