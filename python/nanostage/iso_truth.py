@@ -1,0 +1,252 @@
+"""Synthetic measured ISO 230-2 tests with one hidden out-of-loop effect, written without
+nanostage's measurement chain, effects or simulator (the blind check of
+``nanostage iso-diagnose``; docs/iso-diagnosis.md).
+
+Everything here is its own formula from the physics, so that the diagnosis is not checked
+against its own equations: a test on a 50 mm axis (11 targets with random offsets, 5 runs,
+both directions, the ISO 230-2 standard cycle with trapezoidal moves, a dwell before each
+reading), a loop that stops within about one encoder count of each target (a uniform stop
+error whose width is the count times a nominal mismatch factor, plus a stick-slip-like
+bias per target and direction), the interferometer's noise, and one hidden effect (or
+none) added to the interferometer's reading at the functional point:
+
+* ``scale_error``: the scale is longer than nominal, the reading runs off linearly from the
+  scale's fixing point;
+* ``abbe``: the carriage pitches along the travel (a linear and a bowed part) and tilts
+  with the direction of the drive force, read through an Abbe offset, with a random
+  angular repeatability per approach;
+* ``thermal_drift``: the structure between the scale and the interferometer and the scale
+  itself warm up along an exponential approach to a final rise;
+* ``refractive_index_drift``: the air warms at a constant rate, the wavelength's
+  compensation is not updated, the error grows with the beam's length (dead path
+  included) and time;
+* ``settling_residual``: the functional point creeps on after each move, a fraction of the
+  move decaying with a time constant, and rings at a lightly damped mode read at a random
+  phase;
+* ``interferometer_noise``: air turbulence far above the nominal noise;
+* ``interpolation_error``: the encoder's sub-divisional error, periodic in its signal
+  period: the loop stops where the erroneous reading equals the target.
+
+Only the standard library and numpy are imported (tests/test_iso_diagnosis.py checks it).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+__all__ = ["EFFECTS", "TruthCase", "draw_case", "write_case"]
+
+#: The hidden effects (and "none").
+EFFECTS: Final[tuple[str, ...]] = (
+    "none",
+    "scale_error",
+    "abbe",
+    "thermal_drift",
+    "refractive_index_drift",
+    "settling_residual",
+    "interferometer_noise",
+    "interpolation_error",
+)
+
+TRAVEL_M: Final[float] = 0.05
+N_TARGETS: Final[int] = 11
+RUNS: Final[int] = 5
+OVERRUN_M: Final[float] = 1e-3
+DWELL_S: Final[float] = 0.5
+VELOCITY_M_PER_S: Final[float] = 5e-3
+ACCELERATION_M_PER_S2: Final[float] = 0.05
+#: Rest at the start of the travel between two runs [s] (the operator's pace).
+PAUSE_S: Final[float] = 60.0
+#: The encoder's count [m] (the seed axis's 100 nm resolution).
+COUNT_M: Final[float] = 1e-7
+#: The encoder's signal period [m].
+SIGNAL_PERIOD_M: Final[float] = 20e-6
+
+
+class TruthCase:
+    """One synthetic test: readings in the order of the test, and what is hidden."""
+
+    def __init__(self, effect: str, parameters: dict[str, float], rows: list[dict[str, Any]]):
+        self.effect = effect
+        self.parameters = parameters
+        self.rows = rows
+
+
+def _move_time_s(distance_m: float) -> float:
+    """Duration of a trapezoidal move (rest to rest)."""
+    d = abs(distance_m)
+    v, a = VELOCITY_M_PER_S, ACCELERATION_M_PER_S2
+    if d >= v * v / a:
+        return d / v + v / a
+    return 2.0 * math.sqrt(d / a)
+
+
+def _schedule(rng: np.random.Generator) -> list[dict[str, float]]:
+    """The standard cycle: per run, up through the targets, past the last, down through
+    them, past the first. Each reading: target, direction, run, time, move, dwell."""
+    spacing = TRAVEL_M / (N_TARGETS - 1)
+    targets = []
+    for i in range(N_TARGETS):
+        lo = 0.0 if i == 0 else -0.25 * spacing
+        hi = 0.0 if i == N_TARGETS - 1 else 0.25 * spacing
+        targets.append(i * spacing + float(rng.uniform(lo, hi)))
+    pos = targets[0] - OVERRUN_M
+    t = DWELL_S
+    out: list[dict[str, float]] = []
+
+    def go(to: float) -> float:
+        nonlocal pos, t
+        step = to - pos
+        t += _move_time_s(step) + DWELL_S
+        pos = to
+        return step
+
+    for run in range(1, RUNS + 1):
+        for p in targets:
+            step = go(p)
+            out.append({"target": p, "direction": 1, "run": run, "time": t, "move": step})
+        go(targets[-1] + OVERRUN_M)
+        for p in reversed(targets):
+            step = go(p)
+            out.append({"target": p, "direction": -1, "run": run, "time": t, "move": step})
+        go(targets[0] - OVERRUN_M)
+        t += PAUSE_S
+    return out
+
+
+def _magnitude(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """A magnitude uniform in log between lo and hi, with a random sign."""
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))) * rng.choice([-1.0, 1.0]))
+
+
+def _hidden(
+    effect: str, rng: np.random.Generator, sched: list[dict[str, float]]
+) -> tuple[dict[str, float], np.ndarray]:
+    """The hidden effect's parameters and its error at each reading [m]."""
+    x = np.array([r["target"] for r in sched])
+    d = np.array([r["direction"] for r in sched], dtype=float)
+    t = np.array([r["time"] for r in sched])
+    s = np.array([r["move"] for r in sched])
+    n = x.shape[0]
+    if effect == "none":
+        return {}, np.zeros(n)
+    if effect == "scale_error":
+        eps = _magnitude(rng, 5e-6, 20e-6)
+        fix = float(rng.uniform(-0.03, 0.0))
+        return {"strain": eps, "fixing_point_m": fix}, eps * (x - fix)
+    if effect == "abbe":
+        h = float(rng.uniform(0.01, 0.03))
+        pitch_rate = _magnitude(rng, 4e-4, 1.5e-3)  # rad per metre of travel
+        bow = float(rng.uniform(-1.0, 1.0)) * 0.3  # rad/m² about mid-travel
+        tilt = _magnitude(rng, 4e-6, 12e-6)  # ↑ minus ↓ [rad]
+        wobble = float(rng.uniform(0.2e-6, 1.0e-6))
+        u = x - TRAVEL_M / 2
+        angle = pitch_rate * u + bow * u * u + d * tilt / 2 + wobble * rng.standard_normal(n)
+        return (
+            {
+                "offset_m": h,
+                "pitch_rad_per_m": pitch_rate,
+                "bow_rad_per_m2": bow,
+                "tilt_rad": tilt,
+                "wobble_rad": wobble,
+            },
+            h * np.tan(angle),
+        )
+    if effect == "thermal_drift":
+        rise = float(rng.uniform(1.0, 3.0)) * float(rng.choice([-1.0, 1.0]))
+        tau = float(math.exp(rng.uniform(math.log(200.0), math.log(1500.0))))
+        struct = float(rng.uniform(2e-6, 6e-6))  # m per kelvin of the structural loop
+        glass = 8e-6
+        fix = float(rng.uniform(-0.03, 0.0))
+        warm = rise * (1.0 - np.exp(-t / tau))
+        return (
+            {"rise_k": rise, "tau_s": tau, "structure_m_per_k": struct, "fixing_point_m": fix},
+            (struct + glass * (x - fix)) * warm,
+        )
+    if effect == "refractive_index_drift":
+        # Air warming by K kelvin per hour: the index falls ~0.93e-6 per kelvin.
+        k_per_h = float(rng.uniform(4.0, 10.0)) * float(rng.choice([-1.0, 1.0]))
+        rate = -0.93e-6 * k_per_h / 3600.0
+        dead = float(rng.uniform(0.3, 0.6))
+        return (
+            {"air_k_per_h": k_per_h, "dead_path_m": dead},
+            (dead + x - x[0]) * rate * t,
+        )
+    if effect == "settling_residual":
+        frac = float(rng.uniform(2e-3, 8e-3))
+        tau = float(rng.uniform(0.1, 0.3))
+        ring = float(rng.uniform(0.05e-6, 0.2e-6))
+        phase = rng.uniform(-math.pi, math.pi, n)
+        return (
+            {"creep_fraction": frac, "creep_tau_s": tau, "ring_m": ring},
+            -frac * s * math.exp(-DWELL_S / tau) + ring * np.cos(phase),
+        )
+    if effect == "interferometer_noise":
+        sigma = float(rng.uniform(0.1e-6, 0.4e-6))
+        return {"noise_m": sigma}, sigma * np.asarray(rng.standard_normal(n))
+    if effect == "interpolation_error":
+        amp = float(rng.uniform(0.1e-6, 0.3e-6))
+        phase = float(rng.uniform(-math.pi, math.pi))
+        # The loop stops where x + A·sin(2πx/λ + φ) reads the target: x ≈ P − A·sin(...).
+        return (
+            {"amplitude_m": amp, "phase_rad": phase},
+            -amp * np.sin(2 * math.pi * x / SIGNAL_PERIOD_M + phase),
+        )
+    raise ValueError(f"effect = {effect!r} is invalid: expected one of {', '.join(EFFECTS)}")
+
+
+def draw_case(effect: str, seed: int) -> TruthCase:
+    """A synthetic test with ``effect`` hidden, drawn from ``seed``."""
+    rng = np.random.default_rng([int(seed), 0x7AB])
+    sched = _schedule(rng)
+    params, err = _hidden(effect, rng, sched)
+    n = len(sched)
+    mismatch = float(rng.uniform(0.6, 1.4))
+    stop = COUNT_M * mismatch * rng.uniform(-0.5, 0.5, n)
+    # A stick-slip-like bias per target and direction, within a count.
+    bias = {}
+    for r in sched:
+        key = (round(r["target"], 9), r["direction"])
+        if key not in bias:
+            bias[key] = float(rng.uniform(-0.3, 0.3)) * COUNT_M
+    noise_m = float(rng.uniform(2e-9, 10e-9))
+    rows = []
+    for k, r in enumerate(sched):
+        dev = stop[k] + bias[(round(r["target"], 9), r["direction"])] + err[k]
+        dev += noise_m * float(rng.standard_normal())
+        rows.append(
+            {
+                "target_m": r["target"],
+                "direction": "+" if r["direction"] > 0 else "-",
+                "run": int(r["run"]),
+                "actual_m": r["target"] + dev,
+                "time_s": r["time"],
+            }
+        )
+    params = dict(params, loop_mismatch=mismatch, reading_noise_m=noise_m)
+    return TruthCase(effect, params, rows)
+
+
+def write_case(case: TruthCase, path: str | Path) -> Path:
+    """The case's readings as a measurement CSV (target_m, direction, run, actual_m,
+    time_s)."""
+    p = Path(path)
+    with p.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["target_m", "direction", "run", "actual_m", "time_s"])
+        for r in case.rows:
+            w.writerow(
+                [
+                    f"{r['target_m']:.12g}",
+                    r["direction"],
+                    r["run"],
+                    f"{r['actual_m']:.12g}",
+                    f"{r['time_s']:.6f}",
+                ]
+            )
+    return p
