@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import nanostage
-from nanostage import iso230_2, output
+from nanostage import iso230_2, iso_diagnosis, iso_diagnosis_benchmark, measurement, output
 from nanostage.cli import Terminated, main
 from nanostage.diagnosis import benchmark
 from nanostage.diagnosis import run as diagnosis_run
@@ -344,6 +344,19 @@ ERROR_CASES: list[tuple[list[str], list[str]]] = [
     (["model", "export", "seed", "--out", "{tmp}/no/m.toml"], ["--out", "does not exist"]),
     (["iso-gap", "--trials", "1", "--out", "{tmp}/g"], ["--trials", "n_trials = 1", "[2, "]),
     (["iso-gap", "--threads", "0", "--out", "{tmp}/g"], ["--threads", "threads = 0", "[1, 1024]"]),
+    (
+        ["iso-diagnose", "{tmp}/m.csv", "--trials", "1", "--out", "{tmp}/d"],
+        ["--trials", "n_trials = 1", "[4, 4096]"],
+    ),
+    (
+        ["iso-diagnose", "{tmp}/m.csv", "--preset", "sed", "--out", "{tmp}/d"],
+        ["--preset", "'sed'", "did you mean 'seed'"],
+    ),
+    (["iso-diagnose", "{tmp}/missing.csv", "--out", "{tmp}/d"], ["missing.csv"]),
+    (
+        ["iso-diagnose-benchmark", "--cases", "0", "--out", "{tmp}/b"],
+        ["--cases", "cases = 0", "[1, 10000]"],
+    ),
     (["no-such-command"], ["invalid choice", "'no-such-command'"]),
 ]
 
@@ -412,6 +425,11 @@ WORK: dict[str, tuple[list[str], list[tuple[Any, str]]]] = {
     "emps": (["--mat", "{junk_mat}"], [(emps_study, "load_emps")]),
     "iso230": (["{csv}"], [(iso230_2, "read_measurement_csv")]),
     "iso-gap": ([], [(iso_gap, "iso_gap")]),
+    "iso-diagnose": (
+        ["{csv}"],
+        [(measurement, "read_iso_measurement"), (iso_diagnosis, "write_iso_diagnosis")],
+    ),
+    "iso-diagnose-benchmark": ([], [(iso_diagnosis_benchmark, "run_iso_benchmark")]),
     "predict": (
         ["{manifest}"],
         [(importlib.import_module("nanostage.diagnosis.predict"), "predict")],

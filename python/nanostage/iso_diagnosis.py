@@ -186,8 +186,8 @@ class IsoDiagnosisSettings:
     loop_tolerance_m: float | None = None
 
     def __post_init__(self) -> None:
-        int_arg("n_trials", self.n_trials, 4, 4096)
-        int_arg("seed", self.seed, 0, 2**32 - 1)
+        int_arg("n_trials", self.n_trials, 4, 4096, strict=True)
+        int_arg("seed", self.seed, 0, 2**32 - 1, strict=True)
         for name, lo, hi, unit, lo_open in (
             ("dwell_s", 1e-3, 60.0, "s", False),
             ("overrun_m", 0.0, 0.1, "m", True),

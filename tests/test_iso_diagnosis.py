@@ -1,0 +1,273 @@
+"""The ISO-level diagnosis (nanostage.iso_diagnosis) and its blind benchmark's truth."""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import nanostage.iso_diagnosis as idg
+from nanostage import ConfigError, iso230_2, iso_truth, presets
+from nanostage.campaign import run_campaign
+from nanostage.cli import main
+from nanostage.iso_diagnosis import IsoDiagnosisSettings, diagnose_iso, iso_features
+from nanostage.iso_diagnosis_benchmark import run_iso_benchmark
+from nanostage.measurement import MeasurementChain, ScaleError, read_iso_measurement
+from nanostage.output import to_jsonable
+
+FAST = IsoDiagnosisSettings(n_trials=8, seed=3)
+
+
+def _write(path: Path, rows: list[tuple[float, str, int, float, float]]) -> Path:
+    lines = ["target_m,direction,run,actual_m,time_s"]
+    lines += [f"{t!r},{d},{r},{a!r},{ts!r}" for t, d, r, a, ts in rows]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _standard_rows(
+    targets: list[float], runs: int, deviation: Any, dt_s: float = 2.0
+) -> list[tuple[float, str, int, float, float]]:
+    """The standard cycle's order (per run: up, then down); ``deviation(i, d, run, t)``."""
+    rows = []
+    t = 0.0
+    for run in range(1, runs + 1):
+        for d, order in (("+", range(len(targets))), ("-", reversed(range(len(targets))))):
+            for i in order:
+                t += dt_s
+                rows.append((targets[i], d, run, targets[i] + deviation(i, d, run, t), t))
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
+# The truth generator is independent of nanostage's chain and effects
+# --------------------------------------------------------------------------------------------
+
+
+def test_the_truth_generator_imports_nothing_of_nanostage() -> None:
+    tree = ast.parse(Path(iso_truth.__file__).read_text(encoding="utf-8"))
+    stdlib = set(sys.stdlib_module_names)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                assert a.name.split(".")[0] in stdlib | {"numpy"}, a.name
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 0, ast.dump(node)
+            top = (node.module or "").split(".")[0]
+            assert top in stdlib | {"numpy", "__future__"}, node.module
+
+
+def test_the_truth_scale_error_is_the_strain_times_the_distance_from_the_fixing_point() -> None:
+    case = iso_truth.draw_case("scale_error", 5)
+    none = iso_truth.draw_case("none", 5)
+    eps, fix = case.parameters["strain"], case.parameters["fixing_point_m"]
+    # Same seed: the same schedule and the same loop draws up to the hidden effect's draws.
+    x = np.array([r["target_m"] for r in case.rows])
+    dev = np.array([r["actual_m"] for r in case.rows]) - x
+    assert len(case.rows) == iso_truth.N_TARGETS * iso_truth.RUNS * 2
+    # The loop and the noise stay within about a count; the rest is ε·(x − fix).
+    resid = dev - eps * (x - fix)
+    assert np.max(np.abs(resid)) < 1.5 * iso_truth.COUNT_M
+    assert none.effect == "none" and "strain" not in none.parameters
+
+
+# --------------------------------------------------------------------------------------------
+# Features against hand-computed values
+# --------------------------------------------------------------------------------------------
+
+
+def test_features_match_the_hand_computed_values(tmp_path: Path) -> None:
+    pitch = 20e-6
+    targets = [0.0, 0.0100037, 0.0199911, 0.0300052, 0.04]
+    amp, phase, bias, reversal, k = 0.3e-6, 0.7, 0.1e-6, 0.4e-6, 2e-9
+    # A group's runs are read 2·(2·5) s apart: t − (the group's mean time) = 20 s·(run − 2).
+    rows = _standard_rows(
+        targets,
+        3,
+        lambda i, d, run, t: (
+            bias
+            + amp * math.sin(2 * math.pi * targets[i] / pitch + phase)
+            + (0.5 if d == "+" else -0.5) * reversal
+            + k * 20.0 * (run - 2)
+        ),
+    )
+    meas = read_iso_measurement(_write(tmp_path / "m.csv", rows))
+    f = iso_features(meas, scale_pitch_m=pitch, screw_lead_m=2e-3)
+    mean_bi = np.array([bias + amp * math.sin(2 * math.pi * x / pitch + phase) for x in targets])
+    np.testing.assert_allclose(f["mean_deviation_up_m"], mean_bi + reversal / 2, atol=1e-15)
+    np.testing.assert_allclose(f["mean_deviation_down_m"], mean_bi - reversal / 2, atol=1e-15)
+    np.testing.assert_allclose(f["reversal_m"], reversal, atol=1e-15)
+    # Three runs of one group are read 2·(2·5) s apart: s = k · 20 s.
+    np.testing.assert_allclose(f["std_up_m"], k * 20.0, rtol=1e-9)
+    assert f["trend"]["against"] == "time_s"
+    assert f["trend"]["slope_m_per_s"] == pytest.approx(k, rel=1e-9)
+    p = f["periodic"]["scale_pitch"]
+    assert p["amplitude_m"] == pytest.approx(amp, rel=1e-9)
+    assert p["amplitude_se_m"] < 1e-15
+    assert set(f["periodic"]) == {"scale_pitch", "screw_lead"}
+
+
+# --------------------------------------------------------------------------------------------
+# Diagnoses
+# --------------------------------------------------------------------------------------------
+
+
+def _model_test(tmp_path: Path, chain: MeasurementChain | None, noise_m: float) -> Path:
+    """A measured test made of one trial of the model's own campaign (another seed), read
+    through ``chain`` and white noise."""
+    targets = [0.0, 0.00512, 0.0098, 0.0151, 0.0203, 0.0249]
+    rows = _standard_rows(targets, 3, lambda i, d, run, t: 0.0)
+    src = _write(tmp_path / "layout.csv", rows)
+    meas = read_iso_measurement(src)
+    system = presets.preset_system("seed")
+    cycle = idg.measurement_cycle(meas, FAST, system.controller.sample_period_s)
+    camp = run_campaign(system, cycle, n_trials=1, seed=99, progress=False)
+    if chain is not None:
+        camp = camp.with_measurement(chain)
+    actual = camp.interferometer_m[0] + np.random.default_rng(7).normal(0, noise_m, len(rows))
+    out = [(t, d, r, float(a), float(ts)) for (t, d, r, _, ts), a in zip(rows, actual, strict=True)]
+    return _write(tmp_path / "m.csv", out)
+
+
+def test_a_scale_error_read_through_the_chain_is_named_with_its_size(tmp_path: Path) -> None:
+    chain = MeasurementChain(scale=ScaleError(linear_error_m_per_m=20e-6, datum_m=0.0))
+    meas = read_iso_measurement(_model_test(tmp_path, chain, 10e-9))
+    rep = diagnose_iso(meas, presets.preset_system("seed"), FAST)
+    assert rep["verdict"] == "scale_error"
+    top = rep["candidates"][0]
+    assert top["name"] == "scale_error" and top["significant"]
+    assert top["parameters"]["linear_error_m_per_m"] == pytest.approx(20e-6, rel=0.05)
+    # Whatever is tied with it is named with an experiment that separates them.
+    for t in rep["indistinguishable"]:
+        assert t["separating_test"]
+    assert rep["figure_gap_shrink"] > 0.8
+
+
+def test_the_model_itself_at_the_noise_floor_is_none(tmp_path: Path) -> None:
+    meas = read_iso_measurement(_model_test(tmp_path, None, 10e-9))
+    rep = diagnose_iso(meas, presets.preset_system("seed"), FAST)
+    assert rep["verdict"] == "none"
+    assert rep["indistinguishable"] == []
+    assert not any(c["significant"] for c in rep["candidates"])
+    assert rep["figure_gap_shrink"] == 0.0
+
+
+def test_a_hidden_thermal_drift_from_the_independent_truth_is_named(tmp_path: Path) -> None:
+    path = iso_truth.write_case(iso_truth.draw_case("thermal_drift", 104), tmp_path / "t.csv")
+    rep = diagnose_iso(read_iso_measurement(path), presets.preset_system("seed"), FAST)
+    names = [rep["verdict"], *(t["candidate"] for t in rep["indistinguishable"])]
+    assert "thermal_drift" in names
+
+
+def test_the_same_seed_gives_the_same_report(tmp_path: Path) -> None:
+    path = iso_truth.write_case(iso_truth.draw_case("abbe", 11), tmp_path / "a.csv")
+    meas = read_iso_measurement(path)
+    system = presets.preset_system("seed")
+    a = diagnose_iso(meas, system, FAST)
+    b = diagnose_iso(meas, system, FAST)
+    for r in (a, b):
+        r.pop("timing_s")
+    assert json.dumps(to_jsonable(a)) == json.dumps(to_jsonable(b))
+
+
+# --------------------------------------------------------------------------------------------
+# Bad input and settings: errors before any campaign runs
+# --------------------------------------------------------------------------------------------
+
+
+def _no_campaign(monkeypatch: pytest.MonkeyPatch) -> None:
+    def never(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("a campaign ran although the input is bad")
+
+    monkeypatch.setattr(idg, "run_campaign", never)
+
+
+@pytest.mark.parametrize(
+    ("edit", "fragments"),
+    [
+        (lambda rows: rows[:-1], ["line", "column 'run'", "has 2 runs but"]),
+        (
+            lambda rows: [(*r[:4], 100.0 - r[4]) for r in rows],
+            ["line 3", "column 'time_s'", "not after"],
+        ),
+        (
+            lambda rows: [
+                (0.2, d, r, 0.2 + 1e-7, ts) if t == 0.02 else (t, d, r, a, ts)
+                for t, d, r, a, ts in rows
+            ],
+            ["line 4", "column 'target_m'", "outside the travel"],
+        ),
+    ],
+    ids=["missing run", "times backwards", "target outside the travel"],
+)
+def test_bad_measurements_name_file_line_and_column_before_any_campaign(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    edit: Any,
+    fragments: list[str],
+) -> None:
+    _no_campaign(monkeypatch)
+    rows = _standard_rows([0.0, 0.01, 0.02], 3, lambda i, d, run, t: 1e-7)
+    path = _write(tmp_path / "bad.csv", edit(rows))
+    code = main(["iso-diagnose", str(path), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "bad.csv" in err
+    for fragment in fragments:
+        assert fragment in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_millimetres_in_a_metre_file_are_an_error(tmp_path: Path) -> None:
+    rows = _standard_rows([0.0, 10.0, 20.0], 3, lambda i, d, run, t: 1e-4)
+    with pytest.raises(iso230_2.Iso230InputError, match=r"m\.csv"):
+        read_iso_measurement(_write(tmp_path / "m.csv", rows))
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "fragment"),
+    [
+        ("n_trials", 2, "n_trials = 2 is invalid: expected an integer in [4, 4096]"),
+        ("dwell_s", 0.0, "dwell_s = 0.0 is invalid: expected a value in [0.001, 60] s"),
+        ("scatter_tolerance", 0.5, "scatter_tolerance = 0.5 is invalid"),
+        ("loop_tolerance_m", -1e-9, "loop_tolerance_m = -1e-09 is invalid"),
+    ],
+)
+def test_settings_are_checked(field: str, value: object, fragment: str) -> None:
+    with pytest.raises(ConfigError) as exc:
+        IsoDiagnosisSettings(**{field: value})  # type: ignore[arg-type]
+    assert fragment in str(exc.value)
+
+
+# --------------------------------------------------------------------------------------------
+# The command and the benchmark write their folders
+# --------------------------------------------------------------------------------------------
+
+
+def test_the_command_writes_the_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = iso_truth.write_case(iso_truth.draw_case("abbe", 11), tmp_path / "a.csv")
+    out = tmp_path / "out"
+    code = main(
+        ["iso-diagnose", str(path), "--trials", "8", "--no-plot", "--quiet", "--out", str(out)]
+    )
+    assert code == 0, capsys.readouterr().err
+    rep = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    assert rep["verdict"] == "abbe"
+    assert {p.name for p in out.iterdir()} >= {"report.json", "report.md"}
+    assert "Verdict: abbe" in (out / "report.md").read_text(encoding="utf-8")
+
+
+def test_a_one_case_benchmark_scores_its_case(tmp_path: Path) -> None:
+    s = run_iso_benchmark(tmp_path / "b", cases=1, seed=5, settings=FAST, progress=False)
+    row = s["rows"][0]
+    assert s["cases"] == 1 and row["hidden"] in iso_truth.EFFECTS
+    assert (tmp_path / "b" / "cases" / "case_0000.csv").exists()
+    assert sum(sum(r.values()) for r in s["confusion"].values()) == 1
+    assert "Confusion" in (tmp_path / "b" / "benchmark.md").read_text(encoding="utf-8")
