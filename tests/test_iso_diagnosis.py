@@ -271,3 +271,23 @@ def test_a_one_case_benchmark_scores_its_case(tmp_path: Path) -> None:
     assert (tmp_path / "b" / "cases" / "case_0000.csv").exists()
     assert sum(sum(r.values()) for r in s["confusion"].values()) == 1
     assert "Confusion" in (tmp_path / "b" / "benchmark.md").read_text(encoding="utf-8")
+
+
+def test_without_matplotlib_the_report_is_written_with_a_note(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util,
+        "find_spec",
+        lambda name, *a, **k: None if name == "matplotlib" else real(name, *a, **k),
+    )
+    path = iso_truth.write_case(iso_truth.draw_case("none", 5), tmp_path / "n.csv")
+    out = tmp_path / "out"
+    assert main(["iso-diagnose", str(path), "--trials", "8", "--quiet", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert not (out / "diagnosis.png").exists() and (out / "report.json").is_file()
+    assert 'pip install "nanostage[plot]"' in err
+    assert "matplotlib is not installed" in (out / "report.md").read_text(encoding="utf-8")
