@@ -27,6 +27,7 @@ from ..effects import (
     PositionFriction,
     StaticFrictionMap,
 )
+from ..fitting import Param, harmonic, lugre_model, static_map
 
 __all__ = [
     "CANDIDATES",
@@ -35,35 +36,6 @@ __all__ = [
     "Param",
     "applicable_candidates",
 ]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Param:
-    """One fitted parameter of a candidate."""
-
-    name: str
-    unit: str
-    lower: float
-    upper: float
-    initial: float
-    log: bool = False
-
-    def to_unit(self, value: float) -> float:
-        """Physical value → normalised coordinate in [0, 1]."""
-        if self.log:
-            return (math.log(value) - math.log(self.lower)) / (
-                math.log(self.upper) - math.log(self.lower)
-            )
-        return (value - self.lower) / (self.upper - self.lower)
-
-    def from_unit(self, u: float) -> float:
-        """Normalised coordinate → physical value."""
-        u = min(max(u, 0.0), 1.0)
-        if self.log:
-            return math.exp(
-                math.log(self.lower) + u * (math.log(self.upper) - math.log(self.lower))
-            )
-        return self.lower + u * (self.upper - self.lower)
 
 
 Apply = Callable[[System, Sequence[float]], System]
@@ -157,11 +129,6 @@ def _add_position_term(system: System, pf: PositionFriction) -> System:
     return _fx(system, position_friction=(*system.effects.position_friction, pf))
 
 
-def _harmonic(kappa: float, c: float, s: float) -> tuple[float, float, float]:
-    """``c·cos κx + s·sin κx`` as (amplitude, κ, phase)."""
-    return (math.hypot(c, s), kappa, math.atan2(-s, c))
-
-
 def _link_params(*, lower_n_per_m: float, initial_n_per_m: float) -> tuple[Param, Param]:
     """Stiffness (up to 1e9 N/m) and damping of a drive-train link, log-scaled."""
     return (
@@ -224,12 +191,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                     log=True,
                 ),
             ),
-            apply=lambda s, v: _fx(
-                s,
-                table_friction=StaticFrictionMap(
-                    static_force_n=v[0], coulomb_force_n=v[0], viscous_n_s_per_m=v[1]
-                ),
-            ),
+            apply=lambda s, v: _fx(s, table_friction=static_map(v[0], 0.0, v[1])),
             signature="rate-independent sliding friction with true stiction: final errors "
             "(stick before the target) and a speed-dependent slew",
         )
@@ -257,14 +219,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                     log=True,
                 ),
             ),
-            apply=lambda s, v: _fx(
-                s,
-                table_friction=StaticFrictionMap(
-                    static_force_n=v[0] + v[1],
-                    coulomb_force_n=v[0],
-                    stribeck_velocity_m_per_s=v[2],
-                ),
-            ),
+            apply=lambda s, v: _fx(s, table_friction=static_map(v[0], v[1], 0.0, v[2])),
             signature="friction falling with speed at low velocity: a breakaway jump at the "
             "start of moves and stick-slip while settling",
         )
@@ -300,12 +255,12 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             params=_presliding_params(sys),
             apply=lambda s, v: _fx(
                 s,
-                table_friction=LuGre(
+                table_friction=lugre_model(
                     stiffness_n_per_m=v[2],
                     damping_n_s_per_m=0.0,
                     viscous_n_s_per_m=0.0,
                     coulomb_force_n=v[0],
-                    static_force_n=v[0] + v[1],
+                    static_excess_n=v[1],
                     stribeck_velocity_m_per_s=v[3],
                 ),
             ),
@@ -416,7 +371,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             ),
             apply=lambda s, v: _add_position_term(
                 s,
-                PositionFriction(side=side, terms=(_harmonic(kappa, v[0], v[1]),)),  # type: ignore[arg-type]
+                PositionFriction(side=side, terms=(harmonic(kappa, v[0], v[1]),)),  # type: ignore[arg-type]
             ),
             signature=f"friction periodic in position with the screw lead ({lead_m * 1e3:g} "
             "mm): a residual peak at the lead's spatial period",
@@ -440,7 +395,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
 
         def apply(s: System, v: Sequence[float]) -> System:
             terms = tuple(
-                _harmonic(2 * math.pi / lam, v[2 * i], v[2 * i + 1])
+                harmonic(2 * math.pi / lam, v[2 * i], v[2 * i + 1])
                 for i, lam in enumerate(wavelengths)
             )
             return _add_position_term(s, PositionFriction(side=side, terms=terms))  # type: ignore[arg-type]

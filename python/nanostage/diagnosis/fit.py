@@ -84,7 +84,7 @@ class FitProblem:
         self.scale_m = 1e-7
         #: :func:`gap_plan` of each experiment (by name), computed on first use.
         self._plans: dict[str, list[HoldPlan]] = {}
-        #: :func:`command_plan` of each experiment whose command the gap uses.
+        #: :func:`command_plan` of each experiment with a measured command.
         self._command_plans: dict[str, list[HoldPlan]] = {}
 
     def _uses_command(self, e: Experiment) -> bool:
@@ -136,13 +136,16 @@ class FitProblem:
                         ]
                     )
                 gaps.append(gap)
-                # The command's own check (a channel the fit does not use); None where the
+                # The command's own check (a channel the fit does not use), compared as the
+                # gap would compare it (a limit cycle's phase is no residual); None where the
                 # command is part of the gap already.
-                command.append(
-                    None
-                    if e.command_v is None or self._uses_command(e)
-                    else float(np.mean((e.command_v - cmd) ** 2))
-                )
+                if e.command_v is None or self._uses_command(e):
+                    command.append(None)
+                else:
+                    if e.name not in self._command_plans:
+                        self._command_plans[e.name] = command_plan(self._plans[e.name], e.command_v)
+                    r = apply_gap_plan(self._command_plans[e.name], e.command_v, cmd)
+                    command.append(float(np.mean(r**2)))
             out.append((gaps, command))
         return out
 

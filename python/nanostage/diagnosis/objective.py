@@ -446,8 +446,9 @@ def command_problems(
                 warnings[e.name] = (
                     f"{where}: command_v sits at the rails (±{peak:.6g} V, output limit "
                     f"±{limit:.6g} V) for {share:.0%} of the samples (more than "
-                    f"{CLIPPED_SHARE:.0%}): it tells little of the plant and is left out of "
-                    "the gap; record moves the amplifier can follow"
+                    f"{CLIPPED_SHARE:.0%}: saturated moves, or a limit cycle between the "
+                    "rails): it tells little of the plant and is left out of the gap; moves "
+                    "the amplifier can follow tell more"
                 )
     return errors, warnings
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ..fitting import simplest_of_ties
 from .fit import Fit
 from .settings import DiagnosisSettings, FloatArray
 
@@ -166,5 +167,9 @@ def pick_winner(
     best = next((r for r in results if r.significant), None)
     if best is None or not st.occam_tie_break:
         return best
-    group = [r for r in results if r.significant and (r is best or indistinguishable(best, r))]
-    return max(group, key=lambda r: r.log_occam)
+    # The largest Occam factor is the least complexity (the first in gap order when equal).
+    return simplest_of_ties(
+        results,
+        lambda r: r.significant and (r is best or indistinguishable(best, r)),
+        lambda r: -r.log_occam,
+    )
