@@ -79,7 +79,15 @@ from scipy.stats import qmc
 
 from ._core import ConfigError, SimulationError
 from .config import DahlFriction, IntegratorOptions
-from .effects import Gms, LuGre, PositionFriction, StaticFrictionMap
+from .effects import Gms, PositionFriction, StaticFrictionMap
+from .fitting import (
+    Param,
+    harmonic,
+    information_criteria,
+    lugre_model,
+    simplest_of_ties,
+    static_map,
+)
 from .friction import FrictionModel, friction_response
 
 __all__ = [
@@ -412,26 +420,6 @@ def _family(
     return ModelFamily(name, description, params, builder, rule)
 
 
-def _static(
-    fc: float,
-    dfs: float,
-    fv: float,
-    vs: float = 1e-3,
-    delta: float = 2.0,
-    asym: float = 0.0,
-    lag_s: float | None = None,
-) -> StaticFrictionMap:
-    return StaticFrictionMap(
-        static_force_n=fc + dfs,
-        coulomb_force_n=fc,
-        viscous_n_s_per_m=fv,
-        stribeck_velocity_m_per_s=vs,
-        stribeck_exponent=delta,
-        asymmetry=asym,
-        memory_lag_s=lag_s,
-    )
-
-
 def _stribeck_memory() -> ModelFamily:
     """Stribeck map whose Stribeck term follows the velocity lagged by ``memory_lag_s``."""
     params = (_FC, _DFS, _VS, _FV, _LAG)
@@ -444,7 +432,7 @@ def _stribeck_memory() -> ModelFamily:
         "stribeck_memory",
         "static Stribeck map (δ = 2) with frictional memory (lagged Stribeck term)",
         params,
-        lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2), lag_s=_f(th, 4)),
+        lambda th: static_map(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2), lag_s=_f(th, 4)),
         rule,
     )
 
@@ -476,8 +464,7 @@ def lead_family(lead_m: float, harmonics: int = 1) -> ModelFamily:
         terms = []
         for k in range(harmonics):
             c, sn = float(th[4 + 2 * k]), float(th[5 + 2 * k])
-            # c·cos θ + s·sin θ = a·cos(θ + φ) with a = hypot(c, s), φ = atan2(−s, c).
-            terms.append((math.hypot(c, sn), kappa * (k + 1), math.atan2(-sn, c)))
+            terms.append(harmonic(kappa * (k + 1), c, sn))
         return PositionFriction(side="table", terms=tuple(terms))
 
     return ModelFamily(
@@ -485,7 +472,7 @@ def lead_family(lead_m: float, harmonics: int = 1) -> ModelFamily:
         f"static Stribeck map (δ = 2) modulated with the lead {lead_m * 1e3:g} mm "
         f"({harmonics} harmonic(s))",
         params,
-        lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2)),
+        lambda th: static_map(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2)),
         rule,
         position,
     )
@@ -554,25 +541,25 @@ MODELS: Mapping[str, ModelFamily] = {
             "coulomb_viscous",
             "static map F = Fc·sgn v + Fv·v",
             (_FC, _FV),
-            lambda th: _static(_f(th, 0), 0.0, _f(th, 1)),
+            lambda th: static_map(_f(th, 0), 0.0, _f(th, 1)),
         ),
         _family(
             "stribeck",
             "static Stribeck map, Gaussian shape (δ = 2)",
             (_FC, _DFS, _VS, _FV),
-            lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2)),
+            lambda th: static_map(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2)),
         ),
         _family(
             "stribeck_shape",
             "static Stribeck map with the shape exponent δ fitted",
             (_FC, _DFS, _VS, _DELTA, _FV),
-            lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 4), _f(th, 2), _f(th, 3)),
+            lambda th: static_map(_f(th, 0), _f(th, 1), _f(th, 4), _f(th, 2), _f(th, 3)),
         ),
         _family(
             "stribeck_asymmetric",
             "static Stribeck map (δ = 2), levels scaled by (1 ± a) with the direction",
             (_FC, _DFS, _VS, _FV, _ASYM),
-            lambda th: _static(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2), 2.0, _f(th, 4)),
+            lambda th: static_map(_f(th, 0), _f(th, 1), _f(th, 3), _f(th, 2), 2.0, _f(th, 4)),
         ),
         _family(
             "dahl",
@@ -586,12 +573,12 @@ MODELS: Mapping[str, ModelFamily] = {
             "lugre",
             "LuGre: σ0, σ1, σ2 (viscous), Fc, Fs, vs (Gaussian Stribeck)",
             (_SIGMA, _SIGMA1, _FV, _FC, _DFS, _VS),
-            lambda th: LuGre(
+            lambda th: lugre_model(
                 stiffness_n_per_m=_f(th, 0),
                 damping_n_s_per_m=_f(th, 1),
                 viscous_n_s_per_m=_f(th, 2),
                 coulomb_force_n=_f(th, 3),
-                static_force_n=_f(th, 3) + _f(th, 4),
+                static_excess_n=_f(th, 4),
                 stribeck_velocity_m_per_s=_f(th, 5),
             ),
         ),
@@ -775,14 +762,15 @@ class _Problem:
         fam: ModelFamily,
         data: FrictionData,
         n_fit: int,
-        lo: FloatArray,
-        hi: FloatArray,
+        params: Sequence[Param],
         integrator: IntegratorOptions | None,
     ) -> None:
         self.fam = fam
         self.data = data
         self.n_fit = n_fit
-        self.log = np.array([p.log for p in fam.parameters])
+        lo = np.array([q.lower for q in params])
+        hi = np.array([q.upper for q in params])
+        self.log = np.array([q.log for q in params])
         self.lo_int = np.where(self.log, np.log(np.where(self.log, lo, 1.0)), lo)
         self.hi_int = np.where(self.log, np.log(np.where(self.log, hi, 1.0)), hi)
         self.width = self.hi_int - self.lo_int
@@ -843,20 +831,23 @@ class _Problem:
         return jac
 
 
-def _initial_guess(prob: _Problem, lo: FloatArray, hi: FloatArray) -> FloatArray:
-    """Linear Coulomb + viscous fit of the moving samples; mid-range values for the rest."""
-    d = prob.data
-    v = d.velocity_m_per_s[: prob.n_fit]
+def _bounded_params(
+    fam: ModelFamily, data: FrictionData, n_fit: int, lo: FloatArray, hi: FloatArray
+) -> tuple[Param, ...]:
+    """The family's parameters with their resolved bounds and a data-driven start: a linear
+    Coulomb + viscous fit of the moving samples; mid-range values for the rest."""
+    v = data.velocity_m_per_s[:n_fit]
+    f_fit = data.force_n[:n_fit]
     moving = np.abs(v) > 0.1 * np.max(np.abs(v))
-    fc, fv = 0.5 * float(np.max(np.abs(prob.f_fit))), 0.0
+    fc, fv = 0.5 * float(np.max(np.abs(f_fit))), 0.0
     if np.count_nonzero(moving) >= 2:
         a = np.column_stack([np.sign(v[moving]), v[moving]])
-        sol = np.linalg.lstsq(a, prob.f_fit[moving], rcond=None)[0]
+        sol = np.linalg.lstsq(a, f_fit[moving], rcond=None)[0]
         fc, fv = float(sol[0]), max(float(sol[1]), 0.0)
-    n_slip = sum(1 for p in prob.fam.parameters if p.name.startswith("slip_force_n["))
-    n_k = sum(1 for p in prob.fam.parameters if p.name.startswith("stiffness_n_per_m["))
+    n_slip = sum(1 for p in fam.parameters if p.name.startswith("slip_force_n["))
+    n_k = sum(1 for p in fam.parameters if p.name.startswith("stiffness_n_per_m["))
     guess = np.empty(lo.size)
-    for i, p in enumerate(prob.fam.parameters):
+    for i, p in enumerate(fam.parameters):
         mid = math.sqrt(lo[i] * hi[i]) if p.log else 0.5 * (lo[i] + hi[i])
         if p.name == _FC.name:
             g = fc
@@ -880,7 +871,18 @@ def _initial_guess(prob: _Problem, lo: FloatArray, hi: FloatArray) -> FloatArray
         else:
             g = mid
         guess[i] = g
-    return np.clip(prob.u_of(guess), 0.01, 0.99)
+    return tuple(
+        Param(
+            name=p.name,
+            unit=p.unit,
+            lower=float(lo[i]),
+            upper=float(hi[i]),
+            initial=float(guess[i]),
+            log=p.log,
+            description=p.description,
+        )
+        for i, p in enumerate(fam.parameters)
+    )
 
 
 def _run_start(
@@ -1030,8 +1032,8 @@ def fit_friction(
         )
     fit_part = data._slice(0, n_fit)
     scales = DataScales.from_data(fit_part)
-    lo, hi = _resolve_bounds(fam, scales, bounds)
-    prob = _Problem(fam, data, n_fit, lo, hi, integrator)
+    params = _bounded_params(fam, data, n_fit, *_resolve_bounds(fam, scales, bounds))
+    prob = _Problem(fam, data, n_fit, params, integrator)
     # Every model in the box is valid iff both corners are (the ranges are boxes).
     for corner in (np.zeros(p), np.ones(p)):
         try:
@@ -1047,7 +1049,7 @@ def fit_friction(
         except SimulationError:
             pass
 
-    starts = [_initial_guess(prob, lo, hi)]
+    starts = [np.clip(prob.u_of(np.array([q.initial for q in params])), 0.01, 0.99)]
     if n_starts > 1:
         lhs = qmc.LatinHypercube(d=p, rng=np.random.default_rng(seed)).random(n_starts - 1)
         starts += [np.clip(row, 1e-3, 1 - 1e-3) for row in lhs]
@@ -1085,7 +1087,7 @@ def fit_friction(
     rss = float(np.sum(err[:n_fit] ** 2))
     n_hold = data.n_samples - n_fit
     rms_hold = float(np.sqrt(np.mean(err[n_fit:] ** 2))) if n_hold else math.nan
-    ll = n_fit * math.log(max(rss / n_fit, 1e-300))
+    aic, bic = information_criteria(rss, n_fit, p)
     names = fam.parameter_names
     tol = 1e-3 * best.cost + 1e-12
     return FrictionFit(
@@ -1093,7 +1095,7 @@ def fit_friction(
         parameters={n: float(x) for n, x in zip(names, theta, strict=True)},
         std_errors={n: float(x) for n, x in zip(names, se, strict=True)},
         parameter_status=dict(zip(names, status, strict=True)),
-        bounds={n: (float(a), float(b)) for n, a, b in zip(names, lo, hi, strict=True)},
+        bounds={q.name: (q.lower, q.upper) for q in params},
         covariance=cov,
         n_params=p,
         n_fit=n_fit,
@@ -1101,8 +1103,8 @@ def fit_friction(
         rms_fit_n=math.sqrt(rss / n_fit),
         rms_holdout_n=rms_hold,
         rms_holdout_se_n=_rms_se(err[n_fit:]) if n_hold else math.nan,
-        aic=ll + 2 * p,
-        bic=ll + p * math.log(n_fit),
+        aic=aic,
+        bic=bic,
         component=component,
         predicted_force_n=f_all,
         success=best.success,
@@ -1224,6 +1226,7 @@ def compare_models(
         return ModelComparison(fits=tuple(ranked), best=ranked[0], rule=rule, threshold_n=math.nan)
     ranked = sorted(fits, key=lambda f: f.rms_holdout_n)
     threshold = ranked[0].rms_holdout_n + ranked[0].rms_holdout_se_n
-    within = [f for f in ranked if f.rms_holdout_n <= threshold]
-    best = min(within, key=lambda f: (f.n_params, f.rms_holdout_n))
+    best = simplest_of_ties(
+        ranked, lambda f: f.rms_holdout_n <= threshold, lambda f: (f.n_params, f.rms_holdout_n)
+    )
     return ModelComparison(fits=tuple(ranked), best=best, rule=rule, threshold_n=threshold)
