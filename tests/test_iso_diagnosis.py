@@ -291,3 +291,18 @@ def test_without_matplotlib_the_report_is_written_with_a_note(
     assert not (out / "diagnosis.png").exists() and (out / "report.json").is_file()
     assert 'pip install "nanostage[plot]"' in err
     assert "matplotlib is not installed" in (out / "report.md").read_text(encoding="utf-8")
+
+
+def test_an_executor_gives_the_local_report(tmp_path: Path) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    path = iso_truth.write_case(iso_truth.draw_case("interpolation_error", 13), tmp_path / "i.csv")
+    meas = read_iso_measurement(path)
+    system = presets.preset_system("seed")
+    local = diagnose_iso(meas, system, FAST)
+    with ThreadPoolExecutor(2) as ex:
+        remote = diagnose_iso(meas, system, FAST, executor=ex)
+    for r in (local, remote):
+        r.pop("timing_s")
+    assert json.dumps(to_jsonable(local)) == json.dumps(to_jsonable(remote))
+    assert local["verdict"] == "interpolation_error"

@@ -124,6 +124,11 @@ SEPARATING_TESTS: Final[dict[frozenset[str], str]] = {
     "repeatability scales with the Abbe offset, the interferometer's noise does not",
     frozenset({"interferometer_noise", "settling_residual"}): "a repeat with a longer dwell: a "
     "residual oscillation decays, the interferometer's noise does not",
+    frozenset({"scale_error", "thermal_drift"}): "a repeat at a later time with the "
+    "temperature logged: a thermal expansion changes with the temperature, a scale error "
+    "does not",
+    frozenset({"scale_error", "refractive_index_drift"}): "a repeat at a later time: an "
+    "index drift grows with the time since the interferometer's zero, a scale error does not",
     frozenset({"abbe", "settling_residual"}): "a bidirectional cycle with other step lengths "
     "(a creep scales with the move, a tilt with the direction only) and a second measuring "
     "point",
