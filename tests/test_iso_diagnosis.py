@@ -306,3 +306,23 @@ def test_an_executor_gives_the_local_report(tmp_path: Path) -> None:
         r.pop("timing_s")
     assert json.dumps(to_jsonable(local)) == json.dumps(to_jsonable(remote))
     assert local["verdict"] == "interpolation_error"
+
+
+def test_with_encoder_readings_a_loop_that_stops_counts_off_is_not_blamed_on_the_chain(
+    tmp_path: Path,
+) -> None:
+    # The loop stops 3 counts high on every ↑ approach (an in-loop reversal the encoder
+    # sees): on the interferometer alone it looks like a tilt or a creep; the interferometer
+    # minus the encoder has no chain effect in it.
+    case = iso_truth.draw_case("none", 21)
+    for r in case.rows:
+        if r["direction"] == "+":
+            r["actual_m"] += 3 * iso_truth.COUNT_M
+            r["encoder_m"] += 3 * iso_truth.COUNT_M
+    system = presets.preset_system("seed")
+    with_enc = read_iso_measurement(iso_truth.write_case(case, tmp_path / "e.csv", encoder=True))
+    rep = diagnose_iso(with_enc, system, FAST)
+    assert rep["measured"]["fitted_channel"] == "interferometer_minus_encoder"
+    assert rep["verdict"] == "none"
+    alone = read_iso_measurement(iso_truth.write_case(case, tmp_path / "i.csv"))
+    assert diagnose_iso(alone, system, FAST)["verdict"] != "none"

@@ -953,10 +953,21 @@ def diagnose_iso(
     bar = ProgressBar(len(candidates) + 2, sys.stderr if progress else None, "fit", unit="steps")
     rng = np.random.default_rng([s.seed, 0x150D])
     loop_dev = camp.position_m[rows] - lay.target_m[None, :]
+    model_mean_iso = loop_dev.mean(axis=0)
+    # The channel the candidates are fitted on: with the file's encoder readings, the
+    # interferometer minus the encoder (what the loop saw is taken out, whatever count the
+    # loop stopped at); else the interferometer's deviation.
+    if meas.encoder_m is not None:
+        channel = "interferometer_minus_encoder"
+        fit_dev = np.asarray(meas.records.actual_m, dtype=np.float64) - meas.encoder_m
+        fit_loop = camp.position_m[rows] - camp.encoder_m[rows]
+    else:
+        channel = "interferometer"
+        fit_dev, fit_loop = dev, loop_dev
     nominal = s.reading_noise_m**2
     loop_tol = float(system.encoder.count_m) if s.loop_tolerance_m is None else s.loop_tolerance_m
     v_loop = float(np.mean(np.var(loop_dev, axis=0, ddof=1)))
-    v0 = v_loop + nominal + loop_tol**2 / 12.0
+    v0 = float(np.mean(np.var(fit_loop, axis=0, ddof=1))) + nominal + loop_tol**2 / 12.0
     n_rows = rows.size
     move_m, dwell_s = arrival_times(cycle.reference_m, cycle.measure_index, period)
     times = (
@@ -1003,25 +1014,34 @@ def diagnose_iso(
     noise += rng.uniform(-0.5, 0.5, loop_dev.shape) * loop_tol / math.sqrt(2.0)
     noise += rng.uniform(-0.5, 0.5, (n_rows, n_groups))[:, group] * loop_tol / math.sqrt(2.0)
     pseudo = loop_dev + noise
-    total = loop_dev.sum(axis=0)
+    total = fit_loop.sum(axis=0)
     null_gain: dict[str, list[float]] = {c.name: [] for c in candidates}
     for j in range(n_rows):
-        mean_others = (total - loop_dev[j]) / (n_rows - 1)
-        r = pseudo[j] - mean_others
+        mean_others = (total - fit_loop[j]) / (n_rows - 1)
+        r = fit_loop[j] + noise[j] - mean_others
         none = _fit(r, empty, False, v0, tol, dirf, half)[0]
         for c in candidates:
             fit_c = _fit(r, options[c.name], c.random, v0, tol, dirf, half, refiners[c.name])[0]
             null_gain[c.name].append(none.nll - fit_c.nll)
     bar.update(2)
 
-    model_mean = loop_dev.mean(axis=0)
-    resid = dev - model_mean
+    resid = fit_dev - fit_loop.mean(axis=0)
     none_fit = _fit(resid, empty, False, v0, tol, dirf, half)[0]
 
-    def predict(fit: _Fit) -> tuple[FloatArray, FloatArray]:
+    def iso_mean(fit: _Fit) -> FloatArray:
+        """The fit's readings on the interferometer's channel: fitted there, or (fitted on
+        the encoder's channel) its effect with the offset and the loop's nuisance refitted
+        on the interferometer's deviations."""
+        if channel == "interferometer":
+            return fit.mean_m
+        base = _fit(dev - model_mean_iso - fit.effect_m, empty, False, v0, tol, dirf, half)[0]
+        out: FloatArray = base.mean_m + fit.effect_m
+        return out
+
+    def predict(fit: _Fit, as_is: bool = False) -> tuple[FloatArray, FloatArray]:
         extra = math.sqrt(max(fit.variance_m2 - v_loop, 0.0))
         draws = rng.standard_normal(loop_dev.shape) * extra
-        tests = loop_dev + fit.mean_m[None, :] + draws
+        tests = loop_dev + (fit.mean_m if as_is else iso_mean(fit))[None, :] + draws
         vecs = [_iso_vector(lay, t) for t in tests]
         return np.array([v[0] for v in vecs]), np.array([v[1] for v in vecs])
 
@@ -1037,7 +1057,8 @@ def diagnose_iso(
             mean_m=zero,
             effect_m=zero,
             loop_reversal_m=0.0,
-        )
+        ),
+        as_is=True,
     )
     u = loop_tol / math.sqrt(12.0)
     before = _z_gap(meas_axis, meas_tgt, plain_axis, plain_tgt, u)
@@ -1128,6 +1149,7 @@ def diagnose_iso(
             "bidirectional": lay.bidirectional,
             "has_time": meas.time_s is not None,
             "has_encoder": meas.encoder_m is not None,
+            "fitted_channel": channel,
             "has_temperature": meas.temperature_k is not None,
         },
         "model": {

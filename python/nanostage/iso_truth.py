@@ -217,7 +217,8 @@ def draw_case(effect: str, seed: int) -> TruthCase:
     noise_m = float(rng.uniform(2e-9, 10e-9))
     rows = []
     for k, r in enumerate(sched):
-        dev = stop[k] + bias[(round(r["target"], 9), r["direction"])] + err[k]
+        loop = stop[k] + bias[(round(r["target"], 9), r["direction"])]
+        dev = loop + err[k]
         dev += noise_m * float(rng.standard_normal())
         rows.append(
             {
@@ -226,19 +227,22 @@ def draw_case(effect: str, seed: int) -> TruthCase:
                 "run": int(r["run"]),
                 "actual_m": r["target"] + dev,
                 "time_s": r["time"],
+                # The count the loop stopped at (an interpolation error moves the table,
+                # not the reading the loop servoes).
+                "encoder_m": COUNT_M * round((r["target"] + loop) / COUNT_M),
             }
         )
     params = dict(params, loop_mismatch=mismatch, reading_noise_m=noise_m)
     return TruthCase(effect, params, rows)
 
 
-def write_case(case: TruthCase, path: str | Path) -> Path:
+def write_case(case: TruthCase, path: str | Path, *, encoder: bool = False) -> Path:
     """The case's readings as a measurement CSV (target_m, direction, run, actual_m,
-    time_s)."""
+    time_s, and with ``encoder`` the encoder's reading encoder_m)."""
     p = Path(path)
     with p.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(["target_m", "direction", "run", "actual_m", "time_s"])
+        w.writerow(["target_m", "direction", "run", "actual_m", "time_s"] + ["encoder_m"] * encoder)
         for r in case.rows:
             w.writerow(
                 [
@@ -248,5 +252,6 @@ def write_case(case: TruthCase, path: str | Path) -> Path:
                     f"{r['actual_m']:.12g}",
                     f"{r['time_s']:.6f}",
                 ]
+                + [f"{r['encoder_m']:.12g}"] * encoder
             )
     return p
