@@ -17,24 +17,27 @@ Method (docs/iso-diagnosis.md):
    executor), read through the nominal interferometer noise. Its trials give the model's
    mean deviation per reading and its scatter.
 3. **Fit** each candidate (:data:`CANDIDATES`) to the residual (measured minus the model's
-   mean deviation per reading): the chain's component is linear in its amplitudes, so its
-   columns are the chain applied, at unit amplitudes, to the campaign's readings, and the
-   amplitudes are a least-squares solution (with a free zero offset); a nonlinear
-   parameter (a time constant) is scanned on a grid. The residual is Gaussian with a
-   variance free within ``[1/scatter_tolerance, scatter_tolerance]`` times the model's
-   (the model's own scatter is uncertain); a random component (noise, angular
+   mean deviation per reading; with the file's encoder readings, the interferometer minus
+   the encoder against the model's position minus its encoder): the chain's component is
+   linear in its amplitudes, so its columns are the chain applied, at unit amplitudes, to
+   the campaign's readings, and the amplitudes are a least-squares solution with a free
+   zero offset and the loop's direction-dependent stop as a nuisance bounded within half
+   an encoder count; a time constant is scanned on a grid and refined. The residual is
+   Gaussian with a variance free within ``[1/scatter_tolerance, scatter_tolerance]`` times
+   the model's (the model's own scatter is uncertain); a random component (noise, angular
    repeatability, a residual oscillation) frees the upper bound.
 4. **Significance against the Monte Carlo noise**: each candidate's likelihood gain over
    "none" is compared with the gains the same fit finds on the campaign's own trials taken
-   as measurements (a test of the model itself, where no effect is present), and with a
-   χ² bound for its number of parameters. "none" is the verdict when no candidate beats
-   that floor.
-5. **Ranking by the ISO quantities**: each fitted candidate predicts a test (the campaign's
+   as measurements (a test of the model itself, read with the nominal noise and the
+   loop's tolerance), and with a χ² bound for its number of parameters; its fitted effect
+   must also exceed half an encoder count. "none" is the verdict when no candidate passes.
+5. **Ranking by the ISO quantities**: each fitted candidate predicts tests (the campaign's
    trials plus its fitted error and scatter); its ISO gap is the rms of the z-scores of the
    measured E, A, R, B, M (per direction) and the per-target mean deviations against that
-   prediction's spread over trials. Significant candidates within the noise of the best
-   gap are *indistinguishable*: the report names them with the test that would separate
-   them; the first is the one with the fewest parameters.
+   prediction's spread over trials. Candidates the data cannot tell apart
+   (:func:`_select`) are reported as *indistinguishable*, each with the experiment that
+   would separate them (:data:`SEPARATING_TESTS`); the verdict is the one with the fewest
+   parameters.
 
 In-loop effects (backlash, friction scatter, gains) need a loop campaign per parameter
 value; they are listed as not covered (use ``nanostage diagnose`` on traces). The encoder's
@@ -98,7 +101,7 @@ THERMAL_TIME_CONSTANTS_S: Final[tuple[float, ...]] = (150.0, 300.0, 600.0, 1200.
 CREEP_TIME_CONSTANTS_S: Final[tuple[float, ...]] = (0.05, 0.1, 0.2, 0.4, 0.8)
 #: Relative ridge on the candidates' amplitudes (picks the smallest effect among equal fits).
 _RIDGE: Final[float] = 1e-6
-#: Largest z-score magnitude a prediction's spread is floored at [m].
+#: Least spread of a predicted ISO quantity in the z-scores [m].
 _SD_FLOOR_M: Final[float] = 1e-9
 #: Axis parameters of the ISO gap (the reversal's signed mean is left out: B covers it).
 ISO_QUANTITIES: Final[tuple[str, ...]] = tuple(
@@ -1273,7 +1276,8 @@ def markdown(report: dict[str, Any], source: str = "") -> str:
         "",
         f"Model: scatter {report['model']['scatter_rms_m'] * 1e9:.1f} nm rms per reading over "
         f"{report['model']['trials']} trials ({report['model']['failed_trials']} failed), "
-        f"nominal reading noise {report['model']['reading_noise_m'] * 1e9:.1f} nm; "
+        f"nominal reading noise {report['model']['reading_noise_m'] * 1e9:.1f} nm; fitted on "
+        f"the {report['measured']['fitted_channel'].replace('_', ' ')}; "
         f"{report['timing_s']['total']:.1f} s (campaign {report['timing_s']['campaign']:.1f} s).",
         "",
     ]
