@@ -69,6 +69,7 @@ from .checks import int_arg
 from .config import System
 from .cycles import Cycle, MoveProfile
 from .effects import EncoderErrors
+from .fitting import simplest_of_ties
 from .measurement import (
     AbbeError,
     InterferometerEnvironment,
@@ -888,8 +889,9 @@ def _select(
         for r in contenders
         if not any(differ(r, o) and o["likelihood_gain"] > r["likelihood_gain"] for o in contenders)
     ]
-    kept.sort(key=lambda r: (r["dof"], r["iso_gap"]))
-    top = kept[0]
+    top = simplest_of_ties(
+        sorted(kept, key=lambda r: r["iso_gap"]), lambda r: True, lambda r: r["dof"]
+    )
     tied = [r["name"] for r in contenders if r is not top and not differ(r, top)]
     return str(top["name"]), tied
 
