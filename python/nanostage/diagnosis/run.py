@@ -22,7 +22,9 @@ plus ``indistinguishable`` (selected effect → candidates the validation data c
 from it), ``crossfit`` (the shrink when each validation experiment is judged by the nominal
 and the selected model refitted on all the other experiments), ``gap_best_single``,
 ``noise_floor_rms_m``, ``forward_selection``, ``evidence``, ``advice``, ``skipped``,
-``nominal_parameters``, ``selected_model_parameters``, ``unexplained_rms_m`` and ``timing_s``.
+``nominal_parameters``, ``selected_model_parameters``, ``unexplained_rms_m``,
+``unexplained`` (with nothing selected above the floor: the gap and its best partial
+explanations), ``warnings`` (about the measured commands) and ``timing_s``.
 """
 
 from __future__ import annotations
