@@ -26,7 +26,9 @@ pub use rodas::{
 use nalgebra::{SMatrix, SVector};
 
 /// Samples of a run (a control loop's, an open loop's, a friction response's) between two
-/// polls of its stop request.
+/// polls of its stop request. A second constant beside [`POLL_EVERY_STEPS`] because the unit
+/// differs: a sample is one whole control interval, which can take from one to `max_steps`
+/// integrator steps; a long interval polls within itself, by steps.
 pub const POLL_EVERY_SAMPLES: usize = 16;
 
 /// An autonomous ODE `dy/dt = f(y)` of fixed dimension `N` (inputs are held constant by the
