@@ -176,7 +176,7 @@ impl<const N: usize> Factor<N> for Arrow<N> {
 /// Steps of a control interval between two polls of its stop request (see
 /// [`Rodas4::integrate_after_jump`]). Counted in integrator steps, not in samples as
 /// [`POLL_EVERY_SAMPLES`](super::POLL_EVERY_SAMPLES) is: a stiff interval of millions of
-/// steps still answers a stop request within a few milliseconds.
+/// steps still answers a stop request after at most this many steps.
 pub const POLL_EVERY_STEPS: usize = 4096;
 
 /// Error norm the first trial step after an input jump aims at
