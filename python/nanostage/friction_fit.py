@@ -297,7 +297,9 @@ class DataScales:
 
 @dataclass(frozen=True, slots=True)
 class Parameter:
-    """One fitted parameter: SI name (unit suffix), unit, whether it is fitted in log space."""
+    """One fitted parameter of a family: SI name (unit suffix), unit, whether it is fitted in
+    log space. Its bounds depend on the record: a fit resolves it into a
+    :class:`nanostage.fitting.Param` with the record's bounds and start value."""
 
     name: str
     unit: str
