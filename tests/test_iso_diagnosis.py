@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ast
+import dataclasses
+import functools
 import json
 import math
 import sys
@@ -16,12 +18,15 @@ import nanostage.iso_diagnosis as idg
 from nanostage import ConfigError, iso230_2, iso_truth, presets
 from nanostage.campaign import run_campaign
 from nanostage.cli import main
+from nanostage.config import System
+from nanostage.effects import Backlash, StochasticFriction
 from nanostage.iso_diagnosis import IsoDiagnosisSettings, diagnose_iso, iso_features
 from nanostage.iso_diagnosis_benchmark import run_iso_benchmark
 from nanostage.measurement import MeasurementChain, ScaleError, read_iso_measurement
 from nanostage.output import to_jsonable
 
-FAST = IsoDiagnosisSettings(n_trials=8, seed=3)
+#: Few trials; the in-loop scans at one size each (a campaign each).
+FAST = IsoDiagnosisSettings(n_trials=8, seed=3, backlash_widths_m=(12e-6,), friction_spreads=(0.5,))
 
 
 def _write(path: Path, rows: list[tuple[float, str, int, float, float]]) -> Path:
@@ -118,27 +123,43 @@ def test_features_match_the_hand_computed_values(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _model_test(tmp_path: Path, chain: MeasurementChain | None, noise_m: float) -> Path:
-    """A measured test made of one trial of the model's own campaign (another seed), read
-    through ``chain`` and white noise."""
+def _model_test(
+    tmp_path: Path,
+    chain: MeasurementChain | None,
+    noise_m: float,
+    system: System | None = None,
+    encoder: bool = False,
+) -> Path:
+    """A measured test made of one trial of the campaign of ``system`` (default: the seed
+    model; another seed), read through ``chain`` and white noise, with the encoder's
+    readings when ``encoder``."""
     targets = [0.0, 0.00512, 0.0098, 0.0151, 0.0203, 0.0249]
     rows = _standard_rows(targets, 3, lambda i, d, run, t: 0.0)
     src = _write(tmp_path / "layout.csv", rows)
     meas = read_iso_measurement(src)
-    system = presets.preset_system("seed")
+    system = presets.preset_system("seed") if system is None else system
     cycle = idg.measurement_cycle(meas, FAST, system.controller.sample_period_s)
     camp = run_campaign(system, cycle, n_trials=1, seed=99, progress=False)
     if chain is not None:
         camp = camp.with_measurement(chain)
     actual = camp.interferometer_m[0] + np.random.default_rng(7).normal(0, noise_m, len(rows))
     out = [(t, d, r, float(a), float(ts)) for (t, d, r, _, ts), a in zip(rows, actual, strict=True)]
-    return _write(tmp_path / "m.csv", out)
+    if not encoder:
+        return _write(tmp_path / "m.csv", out)
+    lines = ["target_m,direction,run,actual_m,time_s,encoder_m"]
+    lines += [
+        f"{t!r},{d},{r},{a!r},{ts!r},{float(e)!r}"
+        for (t, d, r, a, ts), e in zip(out, camp.encoder_m[0], strict=True)
+    ]
+    path = tmp_path / "m.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
 
 
 def test_a_scale_error_read_through_the_chain_is_named_with_its_size(tmp_path: Path) -> None:
     chain = MeasurementChain(scale=ScaleError(linear_error_m_per_m=20e-6, datum_m=0.0))
     meas = read_iso_measurement(_model_test(tmp_path, chain, 10e-9))
-    rep = diagnose_iso(meas, presets.preset_system("seed"), FAST)
+    rep = diagnose_iso(meas, presets.preset_system("seed"), FAST, in_loop=())
     assert rep["verdict"] == "scale_error"
     top = rep["candidates"][0]
     assert top["name"] == "scale_error" and top["significant"]
@@ -160,7 +181,7 @@ def test_the_model_itself_at_the_noise_floor_is_none(tmp_path: Path) -> None:
 
 def test_a_hidden_thermal_drift_from_the_independent_truth_is_named(tmp_path: Path) -> None:
     path = iso_truth.write_case(iso_truth.draw_case("thermal_drift", 104), tmp_path / "t.csv")
-    rep = diagnose_iso(read_iso_measurement(path), presets.preset_system("seed"), FAST)
+    rep = diagnose_iso(read_iso_measurement(path), presets.preset_system("seed"), FAST, in_loop=())
     names = [rep["verdict"], *(t["candidate"] for t in rep["indistinguishable"])]
     assert "thermal_drift" in names
 
@@ -169,8 +190,8 @@ def test_the_same_seed_gives_the_same_report(tmp_path: Path) -> None:
     path = iso_truth.write_case(iso_truth.draw_case("abbe", 11), tmp_path / "a.csv")
     meas = read_iso_measurement(path)
     system = presets.preset_system("seed")
-    a = diagnose_iso(meas, system, FAST)
-    b = diagnose_iso(meas, system, FAST)
+    a = diagnose_iso(meas, system, FAST, in_loop=())
+    b = diagnose_iso(meas, system, FAST, in_loop=())
     for r in (a, b):
         r.pop("timing_s")
     assert json.dumps(to_jsonable(a)) == json.dumps(to_jsonable(b))
@@ -251,7 +272,21 @@ def test_settings_are_checked(field: str, value: object, fragment: str) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def test_the_command_writes_the_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def _small_scans(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The command's settings with the in-loop scans at one size each."""
+    monkeypatch.setattr(
+        idg,
+        "IsoDiagnosisSettings",
+        functools.partial(
+            IsoDiagnosisSettings, backlash_widths_m=(12e-6,), friction_spreads=(0.5,)
+        ),
+    )
+
+
+def test_the_command_writes_the_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _small_scans(monkeypatch)
     path = iso_truth.write_case(iso_truth.draw_case("abbe", 11), tmp_path / "a.csv")
     out = tmp_path / "out"
     code = main(
@@ -284,6 +319,7 @@ def test_without_matplotlib_the_report_is_written_with_a_note(
         "find_spec",
         lambda name, *a, **k: None if name == "matplotlib" else real(name, *a, **k),
     )
+    _small_scans(monkeypatch)
     path = iso_truth.write_case(iso_truth.draw_case("none", 5), tmp_path / "n.csv")
     out = tmp_path / "out"
     assert main(["iso-diagnose", str(path), "--trials", "8", "--quiet", "--out", str(out)]) == 0
@@ -321,8 +357,57 @@ def test_with_encoder_readings_a_loop_that_stops_counts_off_is_not_blamed_on_the
             r["encoder_m"] += 3 * iso_truth.COUNT_M
     system = presets.preset_system("seed")
     with_enc = read_iso_measurement(iso_truth.write_case(case, tmp_path / "e.csv", encoder=True))
-    rep = diagnose_iso(with_enc, system, FAST)
+    rep = diagnose_iso(with_enc, system, FAST, in_loop=())
     assert rep["measured"]["fitted_channel"] == "interferometer_minus_encoder"
     assert rep["verdict"] == "none"
     alone = read_iso_measurement(iso_truth.write_case(case, tmp_path / "i.csv"))
-    assert diagnose_iso(alone, system, FAST)["verdict"] != "none"
+    assert diagnose_iso(alone, system, FAST, in_loop=())["verdict"] != "none"
+
+
+# --------------------------------------------------------------------------------------------
+# In-loop candidates: campaigns of the model with the effect
+# --------------------------------------------------------------------------------------------
+
+#: The scans of the in-loop tests; the measurement is the model itself, so its stop is
+#: trusted to 20 nm (the loop's nuisance stays small).
+IN_LOOP = IsoDiagnosisSettings(
+    n_trials=8,
+    seed=3,
+    backlash_widths_m=(8e-6, 10e-6, 12e-6),
+    friction_spreads=(0.2, 0.5),
+    loop_tolerance_m=20e-9,
+)
+CHAIN = {c.name for c in idg.CANDIDATES}
+
+
+def test_a_backlash_in_the_loop_is_named_backlash_with_its_width(tmp_path: Path) -> None:
+    base = presets.preset_system("seed")
+    system = dataclasses.replace(
+        base, effects=dataclasses.replace(base.effects, backlash=Backlash(width_m=11e-6))
+    )
+    meas = read_iso_measurement(_model_test(tmp_path, None, 5e-9, system, encoder=True))
+    rep = diagnose_iso(meas, base, IN_LOOP)
+    assert rep["verdict"] == "backlash", [(c["name"], c["significant"]) for c in rep["candidates"]]
+    top = rep["candidates"][0]
+    assert top["in_loop"] and top["fitted_channel"] == "interferometer"
+    # The scan interpolates between 10 and 12 µm: within ±1.5 µm of the width.
+    assert top["parameters"]["width_m"] == pytest.approx(11e-6, abs=1.5e-6)
+    # The encoder sees the table: the chain's candidates find nothing beside the encoder.
+    assert not any(c["significant"] for c in rep["candidates"] if c["name"] in CHAIN)
+    assert "backlash" not in rep["not_covered"]
+
+
+def test_friction_scatter_in_the_loop_is_named_with_its_spread(tmp_path: Path) -> None:
+    base = presets.preset_system("seed")
+    sf = StochasticFriction(level_spread=0.4, within_spread=0.4)
+    system = dataclasses.replace(base, effects=dataclasses.replace(base.effects, stochastic=sf))
+    path = _model_test(tmp_path, None, 5e-9, system, encoder=True)
+    rep = diagnose_iso(read_iso_measurement(path), base, IN_LOOP)
+    assert rep["verdict"] == "friction_scatter", [
+        (c["name"], c["significant"]) for c in rep["candidates"]
+    ]
+    top = rep["candidates"][0]
+    assert top["parameters"]["spread"] == pytest.approx(0.4, abs=0.15)
+    # The chain's candidates, beside the encoder, reproduce the ISO quantities far worse.
+    assert rep["indistinguishable"] == []
+    assert all(c["iso_gap"] > 3 * top["iso_gap"] for c in rep["candidates"] if c["name"] in CHAIN)

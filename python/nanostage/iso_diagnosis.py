@@ -47,6 +47,8 @@ order, ``−A·sin(2π x/λ + φ)`` at the target (docs/effects.md): it is fitte
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import math
 import sys
 import time
@@ -68,7 +70,7 @@ from .campaign import CampaignResult, run_campaign
 from .checks import int_arg
 from .config import System
 from .cycles import Cycle, MoveProfile
-from .effects import EncoderErrors
+from .effects import Backlash, EncoderErrors, StochasticFriction
 from .fitting import simplest_of_ties
 from .measurement import (
     AbbeError,
@@ -111,9 +113,9 @@ ISO_QUANTITIES: Final[tuple[str, ...]] = tuple(
 
 #: What the diagnosis does not fit, and why.
 NOT_COVERED: Final[dict[str, str]] = {
-    "backlash": "in the loop: a loop campaign per width; use nanostage diagnose on traces",
-    "friction_scatter": "in the loop: a loop campaign per spread; the model's own scatter "
-    "is trusted within the scatter tolerance",
+    "backlash_hunting": "a backlash wider than the scan, where the loop hunts through the "
+    "dead band (errors of the order of the width, in no fixed pattern): use nanostage "
+    "diagnose on traces",
     "controller_gains": "in the loop: use nanostage diagnose or nanostage tune",
 }
 
@@ -136,6 +138,25 @@ SEPARATING_TESTS: Final[dict[frozenset[str], str]] = {
     frozenset({"abbe", "settling_residual"}): "a bidirectional cycle with other step lengths "
     "(a creep scales with the move, a tilt with the direction only) and a second measuring "
     "point",
+    frozenset({"backlash", "abbe"}): "a bidirectional cycle with a longer dwell and the "
+    "encoder's readings logged (the loop pulls a backlash's lost motion back given time and "
+    "the table's encoder sees it; a direction-dependent tilt stays and the encoder does not "
+    "see it)",
+    frozenset({"backlash", "settling_residual"}): "a bidirectional cycle with a longer dwell "
+    "and other step lengths (a creep scales with the move and decays, a backlash's lost "
+    "motion follows the direction only)",
+    frozenset({"backlash", "interpolation_error"}): "a bidirectional cycle at targets shifted "
+    "by a fraction of the signal period (an interpolation error follows the position, a "
+    "backlash the direction)",
+    frozenset({"friction_scatter", "interferometer_noise"}): "the encoder's readings logged "
+    "beside the interferometer's, or two readings at each stop (a scatter of the stops is in "
+    "the encoder's readings and the same at both readings; the interferometer's noise is not)",
+    frozenset({"friction_scatter", "abbe"}): "a second measuring point (an angular "
+    "repeatability scales with the Abbe offset, a scatter of the stops does not)",
+    frozenset({"friction_scatter", "settling_residual"}): "a repeat with a longer dwell (a "
+    "residual oscillation decays, a stop's scatter stays)",
+    frozenset({"friction_scatter", "thermal_drift"}): "a repeat at a later time (a drift "
+    "follows the time, a stop's scatter has no order)",
 }
 _DEFAULT_SEPARATION: Final[str] = (
     "a bidirectional cycle, a repeat at a later time and a second measuring point"
@@ -181,6 +202,15 @@ class IsoDiagnosisSettings:
         elsewhere within it. Adds ``tol²/12`` to the model's variance, and a candidate whose
         fitted effect (rms over the readings) is below ``tol / 2`` is not significant.
         Default: the model's encoder count.
+    in_loop_trials : int
+        Trials of each campaign of the in-loop candidates' scans, in [2, 4096] (the same
+        seed as the model's campaign: common random numbers).
+    backlash_widths_m : tuple of float
+        The backlash scan's widths [m], ascending, each in (0, 1e-2] (the fit interpolates
+        between them and the model without backlash at zero width).
+    friction_spreads : tuple of float
+        The friction scatter scan's spreads, ascending, each in (0, 0.5] (level and
+        within-trial spread of :class:`nanostage.effects.StochasticFriction`).
     """
 
     n_trials: int = 16
@@ -193,9 +223,24 @@ class IsoDiagnosisSettings:
     scatter_tolerance: float = 4.0
     abbe_offset_m: float = 0.02
     loop_tolerance_m: float | None = None
+    in_loop_trials: int = 2
+    backlash_widths_m: tuple[float, ...] = (6e-6, 8e-6, 10e-6, 12e-6)
+    friction_spreads: tuple[float, ...] = (0.1, 0.2, 0.35, 0.5)
 
     def __post_init__(self) -> None:
         int_arg("n_trials", self.n_trials, 4, 4096, strict=True)
+        int_arg("in_loop_trials", self.in_loop_trials, 2, 4096, strict=True)
+        for name, hi, unit in (("backlash_widths_m", 1e-2, "m"), ("friction_spreads", 0.5, "")):
+            grid = getattr(self, name)
+            ok = isinstance(grid, tuple) and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v <= hi
+                for v in grid
+            )
+            if not ok or any(b <= a for a, b in itertools.pairwise(grid)):
+                raise ConfigError(
+                    f"{name} = {grid!r} is invalid: expected an ascending tuple of values in "
+                    f"(0, {hi:g}] {unit}".rstrip()
+                )
         int_arg("seed", self.seed, 0, 2**32 - 1, strict=True)
         for name, lo, hi, unit, lo_open in (
             ("dwell_s", 1e-3, 60.0, "s", False),
@@ -665,6 +710,82 @@ CANDIDATES: Final[tuple[Candidate, ...]] = (
 )
 
 
+def _with_backlash(system: System, width_m: float) -> System:
+    """The model with a gearhead backlash of ``width_m`` (the model's own contact stiffness
+    and damping when it has a backlash, else the library's)."""
+    old = system.effects.backlash
+    bl = Backlash(width_m=width_m) if old is None else dataclasses.replace(old, width_m=width_m)
+    return dataclasses.replace(system, effects=dataclasses.replace(system.effects, backlash=bl))
+
+
+def _with_friction_scatter(system: System, spread: float) -> System:
+    """The model with every friction level scattered by ``spread``: a per-trial level factor
+    and a within-trial fluctuation of the same spread (the model's distribution and
+    correlation time when it has them)."""
+    old = system.effects.stochastic
+    sf = (
+        StochasticFriction(level_spread=spread, within_spread=spread)
+        if old is None
+        else dataclasses.replace(old, level_spread=spread, within_spread=spread)
+    )
+    return dataclasses.replace(system, effects=dataclasses.replace(system.effects, stochastic=sf))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class InLoopCandidate:
+    """An effect in the loop, fitted by campaigns of the model with the effect added.
+
+    Attributes
+    ----------
+    name, what : str
+        As :class:`Candidate`.
+    parameter : str
+        The effect's size the scan runs over.
+    random : bool
+        The effect scatters the stops: it is fitted by the scatter it adds (its mean change
+        over a few trials is Monte Carlo noise); else by its mean change of the stops.
+    grid : callable
+        ``grid(settings)`` → the scan's sizes (ascending; zero is the model itself).
+    with_effect : callable
+        ``with_effect(system, size)`` → the model with the effect added.
+    """
+
+    name: str
+    what: str
+    parameter: str
+    random: bool
+    grid: Callable[[IsoDiagnosisSettings], tuple[float, ...]] = field(repr=False)
+    with_effect: Callable[[System, float], System] = field(repr=False)
+
+    @property
+    def dof(self) -> int:
+        """Free parameters beyond the offset and the model's scatter: the size."""
+        return 1
+
+
+#: The in-loop candidates (fitted on the interferometer's deviations: the loop's stop is
+#: what they change, and the encoder on the table sees it too).
+IN_LOOP_CANDIDATES: Final[tuple[InLoopCandidate, ...]] = (
+    InLoopCandidate(
+        name="backlash",
+        what="Backlash in the loop: where the loop stops after closing the gearhead's dead band",
+        parameter="width_m",
+        random=False,
+        grid=lambda s: s.backlash_widths_m,
+        with_effect=_with_backlash,
+    ),
+    InLoopCandidate(
+        name="friction_scatter",
+        what="StochasticFriction in the loop: the scatter of the stops under a friction level "
+        "that varies from trial to trial and within a trial",
+        parameter="spread",
+        random=True,
+        grid=lambda s: s.friction_spreads,
+        with_effect=_with_friction_scatter,
+    ),
+)
+
+
 # --------------------------------------------------------------------------------------------
 # Fitting
 # --------------------------------------------------------------------------------------------
@@ -771,6 +892,128 @@ def _fit_grid(
             best_units = unit
     assert best is not None
     return best, best_units
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class _Scan:
+    """An in-loop candidate's campaigns: per size (zero first: the model), the mean change
+    of the stops against the model (zero for a random candidate) and the scatter added."""
+
+    sizes: FloatArray
+    effect_m: FloatArray  # (sizes, readings)
+    extra_var_m2: FloatArray  # (sizes,)
+    failed_trials: list[int]
+    seconds: float
+
+    def at(self, size: float) -> tuple[FloatArray, float]:
+        """Linear interpolation between the scan's sizes (the last size beyond it)."""
+        k = int(np.searchsorted(self.sizes, size, side="right")) - 1
+        k = min(max(k, 0), self.sizes.shape[0] - 2)
+        a, b = float(self.sizes[k]), float(self.sizes[k + 1])
+        w = min(max((size - a) / (b - a), 0.0), 1.0)
+        eff: FloatArray = (1.0 - w) * self.effect_m[k] + w * self.effect_m[k + 1]
+        return eff, float((1.0 - w) * self.extra_var_m2[k] + w * self.extra_var_m2[k + 1])
+
+
+def _scan(
+    cand: InLoopCandidate,
+    system: System,
+    cycle: Cycle,
+    base: CampaignResult,
+    s: IsoDiagnosisSettings,
+    threads: int | None,
+    executor: Executor | Any | None,
+) -> _Scan:
+    """Campaigns of the model with the effect at each of the scan's sizes, with the model's
+    seed (common random numbers: trial ``i`` draws the same numbers at every size), each
+    against the same trials of ``base`` (the model without the effect). A size whose
+    campaign completes fewer than two trials ends the scan."""
+    t0 = time.perf_counter()
+    k = s.in_loop_trials
+    target = cycle.target_m
+    base_dev = base.position_m[:k] - target[None, :]
+    base_ok = base.ok[:k]
+    sizes, effects, extra, failed = [0.0], [np.zeros(target.shape[0])], [0.0], []
+    for size in cand.grid(s):
+        camp = run_campaign(
+            cand.with_effect(system, float(size)),
+            cycle,
+            n_trials=k,
+            seed=s.seed,
+            threads=threads,
+            executor=executor,
+            progress=False,
+        )
+        ok = camp.ok & base_ok
+        failed.append(int(camp.n_failed))
+        if int(ok.sum()) < 2:
+            break
+        dev = camp.position_m[ok] - target[None, :]
+        bdev = base_dev[ok]
+        effects.append(np.zeros(target.shape[0]) if cand.random else np.mean(dev - bdev, axis=0))
+        v = float(np.mean(np.var(dev, axis=0, ddof=1)) - np.mean(np.var(bdev, axis=0, ddof=1)))
+        extra.append(max(v, 0.0))
+        sizes.append(float(size))
+    if len(sizes) < 2:  # not one size completed: the model itself, twice
+        sizes.append(1.0)
+        effects.append(effects[0])
+        extra.append(0.0)
+    return _Scan(
+        sizes=np.asarray(sizes),
+        effect_m=np.asarray(effects),
+        extra_var_m2=np.asarray(extra),
+        failed_trials=failed,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _fit_in_loop(
+    r: FloatArray,
+    scan: _Scan,
+    v0: float,
+    tol: float,
+    direction: FloatArray,
+    bound_m: float,
+) -> _Fit:
+    """The in-loop candidate's best size: each scanned size (the residual minus the effect's
+    change of the stops, the variance centred on the model's plus the scatter the effect
+    adds, the offset and the loop's direction-dependent stop as for the chain's
+    candidates), then a bounded search between the best size's neighbours on the
+    interpolated scan."""
+    empty = np.zeros((r.shape[0], 0))
+
+    def at(size: float) -> _Fit:
+        eff, extra = scan.at(size)
+        f = _fit_grid(
+            r - eff, [(size, empty, np.zeros(0))], False, v0 + extra, tol, direction, bound_m
+        )[0]
+        return _Fit(
+            nll=f.nll,
+            offset_m=f.offset_m,
+            beta=np.array([size]),
+            grid=size,
+            variance_m2=f.variance_m2,
+            mean_m=f.mean_m + eff,
+            effect_m=eff,
+            loop_reversal_m=f.loop_reversal_m,
+        )
+
+    sizes = [float(v) for v in scan.sizes[1:]]
+    fits = [at(v) for v in sizes]
+    k = int(np.argmin([f.nll for f in fits]))
+    best = fits[k]
+    grid = [float(scan.sizes[0]), *sizes]
+    lo, hi = grid[k], grid[min(k + 2, len(grid) - 1)]
+    if hi > lo:
+        res = minimize_scalar(
+            lambda v: at(float(v)).nll,
+            bounds=(lo, hi),
+            method="bounded",
+            options={"xatol": 0.01 * (hi - lo)},
+        )
+        if float(res.fun) < best.nll:
+            best = at(float(res.x))
+    return best
 
 
 def _physical(
@@ -905,6 +1148,7 @@ def diagnose_iso(
     executor: Executor | Any | None = None,
     progress: bool = False,
     candidates: Sequence[Candidate] = CANDIDATES,
+    in_loop: Sequence[InLoopCandidate] = IN_LOOP_CANDIDATES,
 ) -> dict[str, Any]:
     """Diagnose a measured ISO 230-2 test against a model (see the module's docstring).
 
@@ -920,6 +1164,8 @@ def diagnose_iso(
         runs the campaign's chunks).
     progress : bool
         Progress on stderr.
+    candidates, in_loop :
+        The chain's candidates and the in-loop candidates (each scanned by campaigns).
 
     Returns
     -------
@@ -955,7 +1201,8 @@ def diagnose_iso(
             f"the model's campaign completed {rows.size} of {camp.n_trials} trials: expected at "
             "least 4 (see the campaign's failures)"
         )
-    bar = ProgressBar(len(candidates) + 2, sys.stderr if progress else None, "fit", unit="steps")
+    n_steps = len(candidates) + len(in_loop) + 2
+    bar = ProgressBar(n_steps, sys.stderr if progress else None, "fit", unit="steps")
     rng = np.random.default_rng([s.seed, 0x150D])
     loop_dev = camp.position_m[rows] - lay.target_m[None, :]
     model_mean_iso = loop_dev.mean(axis=0)
@@ -997,6 +1244,20 @@ def diagnose_iso(
         settings=s,
     )
     options = {c.name: c.columns(ctx) for c in candidates}
+    # The in-loop candidates: campaigns of the model with the effect, on the interferometer's
+    # deviations (the loop's stop is what they change).
+    base = camp
+    if s.in_loop_trials > camp.n_trials and in_loop:
+        base = run_campaign(
+            system,
+            cycle,
+            n_trials=s.in_loop_trials,
+            seed=s.seed,
+            threads=threads,
+            executor=executor,
+        )
+    scans = {c.name: _scan(c, system, cycle, base, s, threads, executor) for c in in_loop}
+    v0_iso = v_loop + nominal + loop_tol**2 / 12.0
     refiners: dict[str, Callable[[float], tuple[FloatArray, FloatArray]] | None] = {
         c.name: (
             None
@@ -1028,6 +1289,13 @@ def diagnose_iso(
         for c in candidates:
             fit_c = _fit(r, options[c.name], c.random, v0, tol, dirf, half, refiners[c.name])[0]
             null_gain[c.name].append(none.nll - fit_c.nll)
+    total_iso = loop_dev.sum(axis=0)
+    for j in range(n_rows):
+        r = loop_dev[j] + noise[j] - (total_iso - loop_dev[j]) / (n_rows - 1)
+        none = _fit(r, empty, False, v0_iso, tol, dirf, half)[0]
+        for ic in in_loop:
+            fit_i = _fit_in_loop(r, scans[ic.name], v0_iso, tol, dirf, half)
+            null_gain[ic.name] = [*null_gain.get(ic.name, []), none.nll - fit_i.nll]
     bar.update(2)
 
     resid = fit_dev - fit_loop.mean(axis=0)
@@ -1112,11 +1380,71 @@ def diagnose_iso(
                     for k, q in enumerate(ISO_QUANTITIES)
                 },
                 "predicted_per_target_m": np.mean(pt, axis=0),
+                "in_loop": False,
+                "fitted_channel": channel,
                 **gap,
             }
         )
         bar.update(3 + i)
-    bar.update(len(candidates) + 2, final=True)
+    resid_iso = dev - model_mean_iso
+    none_iso = _fit(resid_iso, empty, False, v0_iso, tol, dirf, half)[0]
+    for i, ic in enumerate(in_loop):
+        sc = scans[ic.name]
+        fit = _fit_in_loop(resid_iso, sc, v0_iso, tol, dirf, half)
+        gain = none_iso.nll - fit.nll
+        nulls = np.asarray(null_gain[ic.name])
+        floor = max(float(np.quantile(nulls, 0.95)), float(chi2.ppf(0.999, ic.dof)))
+        pa, pt = predict(fit, as_is=True)
+        gap = _z_gap(meas_axis, meas_tgt, pa, pt, u)
+        part = (fit.mean_m - fit.offset_m) - (none_iso.mean_m - none_iso.offset_m)
+        part = part - float(np.mean(part))
+        excess_sd = math.sqrt(max(fit.variance_m2 - none_iso.variance_m2, 0.0))
+        shapes[ic.name] = (part, excess_sd)
+        # The effect is judged whole: its change of the stops is a change of the very stop
+        # the loop's nuisance stands for, computed by the loop itself.
+        own = fit.effect_m - float(np.mean(fit.effect_m))
+        size = math.sqrt(max(float(np.mean(own**2)), float(np.mean(part**2))) + excess_sd**2)
+        value = float(fit.beta[0])
+        eff, extra = sc.at(value)
+        params = {ic.parameter: value}
+        if ic.random:
+            params["stop_scatter_rms_m"] = math.sqrt(extra)
+        else:
+            up = lay.direction > 0
+            params["reversal_m"] = (
+                float(np.mean(eff[up]) - np.mean(eff[~up])) if lay.bidirectional else 0.0
+            )
+        results.append(
+            {
+                "name": ic.name,
+                "what": ic.what,
+                "dof": ic.dof,
+                "likelihood_gain": gain,
+                "noise_floor_gain": floor,
+                "null_gain_max": float(np.max(nulls)),
+                "effect_rms_m": size,
+                "significant": bool(gain > floor and size > 0.5 * loop_tol),
+                "parameters": params,
+                "offset_m": fit.offset_m,
+                "loop_reversal_m": fit.loop_reversal_m,
+                "residual_rms_m": math.sqrt(fit.variance_m2),
+                "predicted": {
+                    q: float(np.nanmean(pa[:, k])) if np.any(np.isfinite(pa[:, k])) else None
+                    for k, q in enumerate(ISO_QUANTITIES)
+                },
+                "predicted_per_target_m": np.mean(pt, axis=0),
+                "in_loop": True,
+                "fitted_channel": "interferometer",
+                "scan": {
+                    "sizes": sc.sizes[1:],
+                    "trials": s.in_loop_trials,
+                    "failed_trials": sc.failed_trials,
+                },
+                **gap,
+            }
+        )
+        bar.update(3 + len(candidates) + i)
+    bar.update(n_steps, final=True)
     verdict, tied = _select(results, shapes, gap_noise, 0.5 * loop_tol)
     by_name = {r["name"]: r for r in results}
     trailing = sorted(
@@ -1174,7 +1502,11 @@ def diagnose_iso(
             "cycle_duration_s": cycle.duration_s,
         },
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},
-        "timing_s": {"campaign": t_campaign, "total": time.perf_counter() - t_start},
+        "timing_s": {
+            "campaign": t_campaign,
+            "in_loop_campaigns": sum(v.seconds for v in scans.values()),
+            "total": time.perf_counter() - t_start,
+        },
         "plot": {
             "targets_m": lay.targets_m,
             "measured_m": meas_tgt,

@@ -1,7 +1,8 @@
 """The blind check of the ISO-level diagnosis (``nanostage iso-diagnose-benchmark``).
 
 Each case is a synthetic measured ISO test written by :mod:`nanostage.iso_truth` (its own
-formulas, none of nanostage's chain or effects) with one hidden out-of-loop effect or none;
+formulas, none of nanostage's chain or effects) with one hidden effect, out of the loop or in
+it, or none;
 the diagnosis reads it from its CSV file alone and is scored: top-1 (the hidden effect is
 the verdict; also counted up to the candidates the report names as indistinguishable from
 the verdict), false alarms (an effect named on a no-effect case), how far the figure gap

@@ -1,4 +1,4 @@
-"""Synthetic measured ISO 230-2 tests with one hidden out-of-loop effect, written without
+"""Synthetic measured ISO 230-2 tests with one hidden effect, written without
 nanostage's measurement chain, effects or simulator (the blind check of
 ``nanostage iso-diagnose``; docs/iso-diagnosis.md).
 
@@ -25,7 +25,17 @@ none) added to the interferometer's reading at the functional point:
   phase;
 * ``interferometer_noise``: air turbulence far above the nominal noise;
 * ``interpolation_error``: the encoder's sub-divisional error, periodic in its signal
-  period: the loop stops where the erroneous reading equals the target.
+  period: the loop stops where the erroneous reading equals the target;
+* ``backlash`` (in the loop): a gearhead dead band between the motor and the table. The
+  encoder is on the table, so the loop closes on the table and recovers the lost motion of
+  the approach, but not the coast at the stop: as the motor side decelerates, the table
+  runs on inside the dead band against its friction by a fraction of the width, and
+  pulling it back means reversing the motor across the whole dead band, which the loop's
+  integral does not finish within the dwell. The table stays past the target in the
+  approach's direction by that coast (the encoder sees it);
+* ``friction_scatter`` (in the loop): the friction varies from approach to approach, so the
+  loop stops anywhere within its dead zone of about ±1 count (uniform), plus a stick-slip
+  scatter of the last micro-slips (Gaussian); the encoder sees it.
 
 Only the standard library and numpy are imported (tests/test_iso_diagnosis.py checks it).
 """
@@ -39,7 +49,7 @@ from typing import Any, Final
 
 import numpy as np
 
-__all__ = ["EFFECTS", "TruthCase", "draw_case", "write_case"]
+__all__ = ["EFFECTS", "IN_LOOP", "TruthCase", "draw_case", "write_case"]
 
 #: The hidden effects (and "none").
 EFFECTS: Final[tuple[str, ...]] = (
@@ -51,7 +61,12 @@ EFFECTS: Final[tuple[str, ...]] = (
     "settling_residual",
     "interferometer_noise",
     "interpolation_error",
+    "backlash",
+    "friction_scatter",
 )
+
+#: The hidden effects that act in the loop (the encoder sees them).
+IN_LOOP: Final[tuple[str, ...]] = ("backlash", "friction_scatter")
 
 TRAVEL_M: Final[float] = 0.05
 N_TARGETS: Final[int] = 11
@@ -197,6 +212,21 @@ def _hidden(
             {"amplitude_m": amp, "phase_rad": phase},
             -amp * np.sin(2 * math.pi * x / SIGNAL_PERIOD_M + phase),
         )
+    if effect == "backlash":
+        width = float(rng.uniform(10e-6, 13e-6))
+        coast = float(rng.uniform(0.012, 0.0135))  # of the width, at the stop
+        jitter = float(rng.uniform(0.05, 0.15)) * COUNT_M
+        return (
+            {"width_m": width, "coast_fraction": coast, "jitter_m": jitter},
+            d * coast * width + jitter * rng.uniform(-1.0, 1.0, n),
+        )
+    if effect == "friction_scatter":
+        dead = float(rng.uniform(0.8, 1.2))  # ± counts
+        slip = float(rng.uniform(60e-9, 150e-9))
+        return (
+            {"dead_zone_counts": dead, "stick_slip_m": slip},
+            COUNT_M * dead * rng.uniform(-1.0, 1.0, n) + slip * np.asarray(rng.standard_normal(n)),
+        )
     raise ValueError(f"effect = {effect!r} is invalid: expected one of {', '.join(EFFECTS)}")
 
 
@@ -218,7 +248,15 @@ def draw_case(effect: str, seed: int) -> TruthCase:
     rows = []
     for k, r in enumerate(sched):
         loop = stop[k] + bias[(round(r["target"], 9), r["direction"])]
-        dev = loop + err[k]
+        if effect in IN_LOOP:
+            # Where the loop stops (the encoder on the table sees it); friction scatter's
+            # stop within the dead zone takes the place of the nominal stop.
+            if effect == "friction_scatter":
+                loop -= stop[k]
+            loop += err[k]
+            dev = loop
+        else:
+            dev = loop + err[k]
         dev += noise_m * float(rng.standard_normal())
         rows.append(
             {
