@@ -1,10 +1,11 @@
-"""Which out-of-loop effects explain a measured ISO 230-2 test? (``nanostage iso-diagnose``)
+"""Which effect explains a measured ISO 230-2 test? (``nanostage iso-diagnose``)
 
 The closed loop servoes the encoder; an ISO 230-2 test reads an interferometer at the
 functional point. What lies between (the measurement chain of :mod:`nanostage.measurement`)
 is invisible to the loop, so a trace diagnosis cannot find it. This module compares a
 measured test with a model's Monte Carlo campaign of the *same* test (its targets, runs,
-directions and order) and says which chain effect, if any, explains the difference.
+directions and order) and says which chain effect, or which in-loop effect, if any,
+explains the difference.
 
 Method (docs/iso-diagnosis.md):
 
@@ -39,8 +40,12 @@ Method (docs/iso-diagnosis.md):
    would separate them (:data:`SEPARATING_TESTS`); the verdict is the one with the fewest
    parameters.
 
-In-loop effects (backlash, friction scatter, gains) need a loop campaign per parameter
-value; they are listed as not covered (use ``nanostage diagnose`` on traces). The encoder's
+In-loop effects (:data:`IN_LOOP_CANDIDATES`: a backlash, a friction scatter) change where
+the loop stops: each is fitted by campaigns of the model with the effect added, a scan of
+its size with the model's seed (common random numbers), interpolated between the sizes and
+refined between the best size's neighbours, on the interferometer's deviations; then
+judged by the same significance and ranking. A backlash wide enough for the loop to hunt
+and the controller's gains are not covered (:data:`NOT_COVERED`). The encoder's
 interpolation error acts in the loop but its effect on where the table stops is, to first
 order, ``−A·sin(2π x/λ + φ)`` at the target (docs/effects.md): it is fitted that way.
 """
@@ -86,8 +91,10 @@ from .output import ProgressBar, staged_output, write_json
 
 __all__ = [
     "CANDIDATES",
+    "IN_LOOP_CANDIDATES",
     "NOT_COVERED",
     "SEPARATING_TESTS",
+    "InLoopCandidate",
     "IsoDiagnosisSettings",
     "diagnose_iso",
     "iso_features",
@@ -1534,8 +1541,8 @@ def markdown(report: dict[str, Any], source: str = "") -> str:
         lines.append(
             "**Verdict: none.** No candidate explains the measurement better than the model's "
             "own tests do (each candidate's likelihood gain is below its Monte Carlo noise "
-            "floor): the measurement is at the model's noise floor, or its gap is in the loop "
-            "(not covered below)."
+            "floor): the measurement is at the model's noise floor, or its gap is where no "
+            "candidate reaches (not covered below)."
         )
     else:
         lines.append(
@@ -1579,8 +1586,9 @@ def markdown(report: dict[str, Any], source: str = "") -> str:
     ]
     for k, c in enumerate(report["candidates"], 1):
         params = ", ".join(f"{n} = {p:.3g}" for n, p in c["parameters"].items())
+        name = c["name"] + (" (in the loop)" if c["in_loop"] else "")
         lines.append(
-            f"| {k} | {c['name']} | {params or '—'} | {c['likelihood_gain']:.1f} | "
+            f"| {k} | {name} | {params or '—'} | {c['likelihood_gain']:.1f} | "
             f"{c['noise_floor_gain']:.1f} | {'yes' if c['significant'] else 'no'} | "
             f"{c['iso_gap']:.2f} | {_um(c['figure_gap_rms_m'])} |"
         )
