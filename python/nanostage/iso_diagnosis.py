@@ -1354,43 +1354,71 @@ def diagnose_iso(
 
     results: list[dict[str, Any]] = []
     shapes: dict[str, tuple[FloatArray, float]] = {}
-    for i, c in enumerate(candidates):
-        fit, units = _fit(resid, options[c.name], c.random, v0, tol, dirf, half, refiners[c.name])
-        gain = none_fit.nll - fit.nll
-        nulls = np.asarray(null_gain[c.name])
-        floor = max(float(np.quantile(nulls, 0.95)), float(chi2.ppf(0.999, c.dof)))
-        pa, pt = predict(fit)
+
+    def judge(
+        head: dict[str, Any],
+        dof: int,
+        fit: _Fit,
+        none: _Fit,
+        parameters: dict[str, float],
+        own_m: FloatArray | None,
+        tail: dict[str, Any],
+    ) -> dict[str, Any]:
+        """The candidate's significance, ISO gap and prediction (its fit against ``none``,
+        the fit without a candidate on the same channel; an in-loop candidate, with its own
+        change of the stops ``own_m``, is fitted on the interferometer's channel)."""
+        name = head["name"]
+        gain = none.nll - fit.nll
+        nulls = np.asarray(null_gain[name])
+        floor = max(float(np.quantile(nulls, 0.95)), float(chi2.ppf(0.999, dof)))
+        pa, pt = predict(fit, own_m is not None)
         gap = _z_gap(meas_axis, meas_tgt, pa, pt, u)
         # What the candidate adds to the "none" fit: the change of the fitted readings (the
         # loop's nuisance takes what it can) and the scatter beyond the none fit's.
-        part = (fit.mean_m - fit.offset_m) - (none_fit.mean_m - none_fit.offset_m)
+        part = (fit.mean_m - fit.offset_m) - (none.mean_m - none.offset_m)
         part = part - float(np.mean(part))
-        excess_sd = math.sqrt(max(fit.variance_m2 - none_fit.variance_m2, 0.0))
-        shapes[c.name] = (part, excess_sd)
-        size = math.sqrt(float(np.mean(part**2)) + excess_sd**2)
+        excess_sd = math.sqrt(max(fit.variance_m2 - none.variance_m2, 0.0))
+        shapes[name] = (part, excess_sd)
+        change = float(np.mean(part**2))
+        if own_m is not None:
+            # An in-loop effect is judged whole: its change of the stops is a change of the
+            # very stop the loop's nuisance stands for, computed by the loop itself.
+            own = own_m - float(np.mean(own_m))
+            change = max(float(np.mean(own**2)), change)
+        size = math.sqrt(change + excess_sd**2)
+        return {
+            **head,
+            "dof": dof,
+            "likelihood_gain": gain,
+            "noise_floor_gain": floor,
+            "null_gain_max": float(np.max(nulls)),
+            "effect_rms_m": size,
+            "significant": bool(gain > floor and size > 0.5 * loop_tol),
+            "parameters": parameters,
+            "offset_m": fit.offset_m,
+            "loop_reversal_m": fit.loop_reversal_m,
+            "residual_rms_m": math.sqrt(fit.variance_m2),
+            "predicted": {
+                q: float(np.nanmean(pa[:, k])) if np.any(np.isfinite(pa[:, k])) else None
+                for k, q in enumerate(ISO_QUANTITIES)
+            },
+            "predicted_per_target_m": np.mean(pt, axis=0),
+            **tail,
+            **gap,
+        }
+
+    for i, c in enumerate(candidates):
+        fit, units = _fit(resid, options[c.name], c.random, v0, tol, dirf, half, refiners[c.name])
         results.append(
-            {
-                "name": c.name,
-                "what": c.what,
-                "dof": c.dof,
-                "likelihood_gain": gain,
-                "noise_floor_gain": floor,
-                "null_gain_max": float(np.max(nulls)),
-                "effect_rms_m": size,
-                "significant": bool(gain > floor and size > 0.5 * loop_tol),
-                "parameters": _physical(c, fit, units, v0, s),
-                "offset_m": fit.offset_m,
-                "loop_reversal_m": fit.loop_reversal_m,
-                "residual_rms_m": math.sqrt(fit.variance_m2),
-                "predicted": {
-                    q: float(np.nanmean(pa[:, k])) if np.any(np.isfinite(pa[:, k])) else None
-                    for k, q in enumerate(ISO_QUANTITIES)
-                },
-                "predicted_per_target_m": np.mean(pt, axis=0),
-                "in_loop": False,
-                "fitted_channel": channel,
-                **gap,
-            }
+            judge(
+                {"name": c.name, "what": c.what},
+                c.dof,
+                fit,
+                none_fit,
+                _physical(c, fit, units, v0, s),
+                None,
+                {"in_loop": False, "fitted_channel": channel},
+            )
         )
         bar.update(3 + i)
     resid_iso = dev - model_mean_iso
@@ -1398,19 +1426,6 @@ def diagnose_iso(
     for i, ic in enumerate(in_loop):
         sc = scans[ic.name]
         fit = _fit_in_loop(resid_iso, sc, v0_iso, tol, dirf, half)
-        gain = none_iso.nll - fit.nll
-        nulls = np.asarray(null_gain[ic.name])
-        floor = max(float(np.quantile(nulls, 0.95)), float(chi2.ppf(0.999, ic.dof)))
-        pa, pt = predict(fit, as_is=True)
-        gap = _z_gap(meas_axis, meas_tgt, pa, pt, u)
-        part = (fit.mean_m - fit.offset_m) - (none_iso.mean_m - none_iso.offset_m)
-        part = part - float(np.mean(part))
-        excess_sd = math.sqrt(max(fit.variance_m2 - none_iso.variance_m2, 0.0))
-        shapes[ic.name] = (part, excess_sd)
-        # The effect is judged whole: its change of the stops is a change of the very stop
-        # the loop's nuisance stands for, computed by the loop itself.
-        own = fit.effect_m - float(np.mean(fit.effect_m))
-        size = math.sqrt(max(float(np.mean(own**2)), float(np.mean(part**2))) + excess_sd**2)
         value = float(fit.beta[0])
         eff, extra = sc.at(value)
         params = {ic.parameter: value}
@@ -1421,34 +1436,21 @@ def diagnose_iso(
             params["reversal_m"] = (
                 float(np.mean(eff[up]) - np.mean(eff[~up])) if lay.bidirectional else 0.0
             )
+        scan = {
+            "sizes": sc.sizes[1:],
+            "trials": s.in_loop_trials,
+            "failed_trials": sc.failed_trials,
+        }
         results.append(
-            {
-                "name": ic.name,
-                "what": ic.what,
-                "dof": ic.dof,
-                "likelihood_gain": gain,
-                "noise_floor_gain": floor,
-                "null_gain_max": float(np.max(nulls)),
-                "effect_rms_m": size,
-                "significant": bool(gain > floor and size > 0.5 * loop_tol),
-                "parameters": params,
-                "offset_m": fit.offset_m,
-                "loop_reversal_m": fit.loop_reversal_m,
-                "residual_rms_m": math.sqrt(fit.variance_m2),
-                "predicted": {
-                    q: float(np.nanmean(pa[:, k])) if np.any(np.isfinite(pa[:, k])) else None
-                    for k, q in enumerate(ISO_QUANTITIES)
-                },
-                "predicted_per_target_m": np.mean(pt, axis=0),
-                "in_loop": True,
-                "fitted_channel": "interferometer",
-                "scan": {
-                    "sizes": sc.sizes[1:],
-                    "trials": s.in_loop_trials,
-                    "failed_trials": sc.failed_trials,
-                },
-                **gap,
-            }
+            judge(
+                {"name": ic.name, "what": ic.what},
+                ic.dof,
+                fit,
+                none_iso,
+                params,
+                fit.effect_m,
+                {"in_loop": True, "fitted_channel": "interferometer", "scan": scan},
+            )
         )
         bar.update(3 + len(candidates) + i)
     bar.update(n_steps, final=True)
