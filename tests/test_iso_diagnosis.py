@@ -259,6 +259,13 @@ def test_millimetres_in_a_metre_file_are_an_error(tmp_path: Path) -> None:
         ("dwell_s", 0.0, "dwell_s = 0.0 is invalid: expected a value in [0.001, 60] s"),
         ("scatter_tolerance", 0.5, "scatter_tolerance = 0.5 is invalid"),
         ("loop_tolerance_m", -1e-9, "loop_tolerance_m = -1e-09 is invalid"),
+        ("in_loop_trials", 1, "in_loop_trials = 1 is invalid: expected an integer in [2, 4096]"),
+        (
+            "backlash_widths_m",
+            (8e-6, 6e-6),
+            "backlash_widths_m = (8e-06, 6e-06) is invalid: expected an ascending tuple",
+        ),
+        ("friction_spreads", (0.2, 0.7), "friction_spreads = (0.2, 0.7) is invalid"),
     ],
 )
 def test_settings_are_checked(field: str, value: object, fragment: str) -> None:
@@ -411,3 +418,33 @@ def test_friction_scatter_in_the_loop_is_named_with_its_spread(tmp_path: Path) -
     # The chain's candidates, beside the encoder, reproduce the ISO quantities far worse.
     assert rep["indistinguishable"] == []
     assert all(c["iso_gap"] > 3 * top["iso_gap"] for c in rep["candidates"] if c["name"] in CHAIN)
+
+
+def test_the_truths_in_loop_effects_move_the_stop_the_encoder_sees() -> None:
+    # A backlash: the table stays past the target in the approach's direction by the
+    # coast (coast fraction × width), within its jitter, beside the loop's nominal stop;
+    # the encoder (on the table) reads the count the table stopped in.
+    case = iso_truth.draw_case("backlash", 7)
+    p = case.parameters
+    lost = p["coast_fraction"] * p["width_m"]
+    assert 0.12e-6 <= lost <= 0.176e-6
+    x = np.array([r["target_m"] for r in case.rows])
+    dev = np.array([r["actual_m"] for r in case.rows]) - x
+    d = np.array([1.0 if r["direction"] == "+" else -1.0 for r in case.rows])
+    # The nominal stop and bias are within 1.4/2 + 0.3 count, the jitter and noise on top.
+    bound = (0.7 + 0.3) * iso_truth.COUNT_M + p["jitter_m"] + 5 * p["reading_noise_m"]
+    assert np.max(np.abs(dev - d * lost)) < bound
+    enc = np.array([r["encoder_m"] for r in case.rows])
+    # The encoder rounds where the loop stopped (noise aside): within half a count of it.
+    assert np.max(np.abs(enc - x - dev)) < 0.5 * iso_truth.COUNT_M + 5 * p["reading_noise_m"]
+    # Friction scatter: the stops spread over the dead zone plus the stick-slip scatter.
+    fs = iso_truth.draw_case("friction_scatter", 7)
+    q = fs.parameters
+    dev_fs = np.array([r["actual_m"] - r["target_m"] for r in fs.rows])
+    expected = math.sqrt(
+        (q["dead_zone_counts"] * iso_truth.COUNT_M) ** 2 / 3 + q["stick_slip_m"] ** 2
+    )
+    # Beside the bias per target and direction (±0.3 count), 110 readings: within 25 %.
+    assert np.std(dev_fs) == pytest.approx(
+        math.hypot(expected, 0.3 * iso_truth.COUNT_M / math.sqrt(3)), rel=0.25
+    )
