@@ -79,6 +79,9 @@ def run_iso_benchmark(
                 "hidden": hidden,
                 "hidden_parameters": case.parameters,
                 "found": found,
+                "found_parameters": next(
+                    (c["parameters"] for c in rep["candidates"] if c["name"] == found), {}
+                ),
                 "tied_with": tied,
                 "correct": found == hidden,
                 "correct_up_to_tie": found == hidden or hidden in tied,
