@@ -396,7 +396,8 @@ def test_a_backlash_in_the_loop_is_named_backlash_with_its_width(tmp_path: Path)
     rep = diagnose_iso(meas, base, IN_LOOP)
     assert rep["verdict"] == "backlash", [(c["name"], c["significant"]) for c in rep["candidates"]]
     top = rep["candidates"][0]
-    assert top["in_loop"] and top["fitted_channel"] == "interferometer"
+    # With the encoder's readings, an in-loop effect is fitted where the loop's stop shows.
+    assert top["in_loop"] and top["fitted_channel"] == "encoder"
     # The scan interpolates between 10 and 12 µm: within ±1.5 µm of the width.
     assert top["parameters"]["width_m"] == pytest.approx(11e-6, abs=1.5e-6)
     # The encoder sees the table: the chain's candidates find nothing beside the encoder.
@@ -448,3 +449,19 @@ def test_the_truths_in_loop_effects_move_the_stop_the_encoder_sees() -> None:
     assert np.std(dev_fs) == pytest.approx(
         math.hypot(expected, 0.3 * iso_truth.COUNT_M / math.sqrt(3)), rel=0.25
     )
+
+
+def test_the_encoders_readings_separate_a_stop_scatter_from_the_interferometers_noise(
+    tmp_path: Path,
+) -> None:
+    # Without the encoder both add a random scatter per reading; with it, the in-loop
+    # candidates are fitted on the encoder's deviations, where the interferometer's noise
+    # is not.
+    case = iso_truth.draw_case("interferometer_noise", 12)
+    path = iso_truth.write_case(case, tmp_path / "n.csv", encoder=True)
+    rep = diagnose_iso(read_iso_measurement(path), presets.preset_system("seed"), FAST)
+    assert rep["verdict"] == "interferometer_noise"
+    by_name = {c["name"]: c for c in rep["candidates"]}
+    assert by_name["friction_scatter"]["fitted_channel"] == "encoder"
+    assert not by_name["friction_scatter"]["significant"]
+    assert "friction_scatter" not in [t["candidate"] for t in rep["indistinguishable"]]

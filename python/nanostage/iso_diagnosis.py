@@ -43,8 +43,9 @@ Method (docs/iso-diagnosis.md):
 In-loop effects (:data:`IN_LOOP_CANDIDATES`: a backlash, a friction scatter) change where
 the loop stops: each is fitted by campaigns of the model with the effect added, a scan of
 its size with the model's seed (common random numbers), interpolated between the sizes and
-refined between the best size's neighbours, on the interferometer's deviations; then
-judged by the same significance and ranking. A backlash wide enough for the loop to hunt
+refined between the best size's neighbours, on the encoder's deviations when the file has
+them (a chain effect is not in them), else on the interferometer's; then judged by the
+same significance and ranking. A backlash wide enough for the loop to hunt
 and the controller's gains are not covered (:data:`NOT_COVERED`). The encoder's
 interpolation error acts in the loop but its effect on where the table stops is, to first
 order, ``−A·sin(2π x/λ + φ)`` at the target (docs/effects.md): it is fitted that way.
@@ -907,19 +908,30 @@ class _Scan:
     of the stops against the model (zero for a random candidate) and the scatter added."""
 
     sizes: FloatArray
-    effect_m: FloatArray  # (sizes, readings)
-    extra_var_m2: FloatArray  # (sizes,)
+    effect_m: FloatArray  # (sizes, readings), on the fitted reading
+    position_effect_m: FloatArray  # (sizes, readings), of the table's position
+    extra_var_m2: FloatArray  # (sizes,), on the fitted reading
     failed_trials: list[int]
     seconds: float
 
-    def at(self, size: float) -> tuple[FloatArray, float]:
-        """Linear interpolation between the scan's sizes (the last size beyond it)."""
+    def _weights(self, size: float) -> tuple[int, float]:
         k = int(np.searchsorted(self.sizes, size, side="right")) - 1
         k = min(max(k, 0), self.sizes.shape[0] - 2)
         a, b = float(self.sizes[k]), float(self.sizes[k + 1])
-        w = min(max((size - a) / (b - a), 0.0), 1.0)
+        return k, min(max((size - a) / (b - a), 0.0), 1.0)
+
+    def at(self, size: float) -> tuple[FloatArray, float]:
+        """The effect on the fitted reading and the added variance, by linear interpolation
+        between the scan's sizes (the last size beyond it)."""
+        k, w = self._weights(size)
         eff: FloatArray = (1.0 - w) * self.effect_m[k] + w * self.effect_m[k + 1]
         return eff, float((1.0 - w) * self.extra_var_m2[k] + w * self.extra_var_m2[k + 1])
+
+    def position_at(self, size: float) -> FloatArray:
+        """The effect on the table's position, interpolated as :meth:`at`."""
+        k, w = self._weights(size)
+        out: FloatArray = (1.0 - w) * self.position_effect_m[k] + w * self.position_effect_m[k + 1]
+        return out
 
 
 def _scan(
@@ -930,17 +942,22 @@ def _scan(
     s: IsoDiagnosisSettings,
     threads: int | None,
     executor: Executor | Any | None,
+    encoder: bool,
 ) -> _Scan:
     """Campaigns of the model with the effect at each of the scan's sizes, with the model's
     seed (common random numbers: trial ``i`` draws the same numbers at every size), each
-    against the same trials of ``base`` (the model without the effect). A size whose
-    campaign completes fewer than two trials ends the scan."""
+    against the same trials of ``base`` (the model without the effect), on the encoder's
+    reading with ``encoder``, else on the table's position (and always on the position, for
+    the ISO prediction). A size whose campaign completes fewer than two trials ends the
+    scan."""
     t0 = time.perf_counter()
     k = s.in_loop_trials
     target = cycle.target_m
-    base_dev = base.position_m[:k] - target[None, :]
+    base_dev = (base.encoder_m if encoder else base.position_m)[:k] - target[None, :]
+    base_pos = base.position_m[:k] - target[None, :]
     base_ok = base.ok[:k]
-    sizes, effects, extra, failed = [0.0], [np.zeros(target.shape[0])], [0.0], []
+    zero = np.zeros(target.shape[0])
+    sizes, effects, positions, extra, failed = [0.0], [zero], [zero], [0.0], []
     for size in cand.grid(s):
         camp = run_campaign(
             cand.with_effect(system, float(size)),
@@ -955,19 +972,23 @@ def _scan(
         failed.append(int(camp.n_failed))
         if int(ok.sum()) < 2:
             break
-        dev = camp.position_m[ok] - target[None, :]
+        dev = (camp.encoder_m if encoder else camp.position_m)[ok] - target[None, :]
         bdev = base_dev[ok]
-        effects.append(np.zeros(target.shape[0]) if cand.random else np.mean(dev - bdev, axis=0))
+        pos = camp.position_m[ok] - target[None, :] - base_pos[ok]
+        effects.append(zero if cand.random else np.mean(dev - bdev, axis=0))
+        positions.append(zero if cand.random else np.mean(pos, axis=0))
         v = float(np.mean(np.var(dev, axis=0, ddof=1)) - np.mean(np.var(bdev, axis=0, ddof=1)))
         extra.append(max(v, 0.0))
         sizes.append(float(size))
     if len(sizes) < 2:  # not one size completed: the model itself, twice
         sizes.append(1.0)
-        effects.append(effects[0])
+        effects.append(zero)
+        positions.append(zero)
         extra.append(0.0)
     return _Scan(
         sizes=np.asarray(sizes),
         effect_m=np.asarray(effects),
+        position_effect_m=np.asarray(positions),
         extra_var_m2=np.asarray(extra),
         failed_trials=failed,
         seconds=time.perf_counter() - t0,
@@ -1251,8 +1272,16 @@ def diagnose_iso(
         settings=s,
     )
     options = {c.name: c.columns(ctx) for c in candidates}
-    # The in-loop candidates: campaigns of the model with the effect, on the interferometer's
-    # deviations (the loop's stop is what they change).
+    # The in-loop candidates: campaigns of the model with the effect, on what the loop's stop
+    # changes: the encoder's deviations when the file has them (the encoder is on the table;
+    # the chain's effects are not in them), else the interferometer's.
+    if meas.encoder_m is not None:
+        in_channel = "encoder"
+        in_dev = np.asarray(meas.encoder_m, dtype=np.float64) - lay.target_m
+        in_loop_dev = camp.encoder_m[rows] - lay.target_m[None, :]
+        in_nominal = 0.0
+    else:
+        in_channel, in_dev, in_loop_dev, in_nominal = "interferometer", dev, loop_dev, nominal
     base = camp
     if s.in_loop_trials > camp.n_trials and in_loop:
         base = run_campaign(
@@ -1263,8 +1292,11 @@ def diagnose_iso(
             threads=threads,
             executor=executor,
         )
-    scans = {c.name: _scan(c, system, cycle, base, s, threads, executor) for c in in_loop}
-    v0_iso = v_loop + nominal + loop_tol**2 / 12.0
+    scans = {
+        c.name: _scan(c, system, cycle, base, s, threads, executor, in_channel == "encoder")
+        for c in in_loop
+    }
+    v0_in = float(np.mean(np.var(in_loop_dev, axis=0, ddof=1))) + in_nominal + loop_tol**2 / 12.0
     refiners: dict[str, Callable[[float], tuple[FloatArray, FloatArray]] | None] = {
         c.name: (
             None
@@ -1296,12 +1328,12 @@ def diagnose_iso(
         for c in candidates:
             fit_c = _fit(r, options[c.name], c.random, v0, tol, dirf, half, refiners[c.name])[0]
             null_gain[c.name].append(none.nll - fit_c.nll)
-    total_iso = loop_dev.sum(axis=0)
+    total_in = in_loop_dev.sum(axis=0)
     for j in range(n_rows):
-        r = loop_dev[j] + noise[j] - (total_iso - loop_dev[j]) / (n_rows - 1)
-        none = _fit(r, empty, False, v0_iso, tol, dirf, half)[0]
+        r = in_loop_dev[j] + noise[j] - (total_in - in_loop_dev[j]) / (n_rows - 1)
+        none = _fit(r, empty, False, v0_in, tol, dirf, half)[0]
         for ic in in_loop:
-            fit_i = _fit_in_loop(r, scans[ic.name], v0_iso, tol, dirf, half)
+            fit_i = _fit_in_loop(r, scans[ic.name], v0_in, tol, dirf, half)
             null_gain[ic.name] = [*null_gain.get(ic.name, []), none.nll - fit_i.nll]
     bar.update(2)
 
@@ -1318,10 +1350,14 @@ def diagnose_iso(
         out: FloatArray = base.mean_m + fit.effect_m
         return out
 
-    def predict(fit: _Fit, as_is: bool = False) -> tuple[FloatArray, FloatArray]:
+    def predict(
+        fit: _Fit, as_is: bool = False, mean_m: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray]:
         extra = math.sqrt(max(fit.variance_m2 - v_loop, 0.0))
         draws = rng.standard_normal(loop_dev.shape) * extra
-        tests = loop_dev + (fit.mean_m if as_is else iso_mean(fit))[None, :] + draws
+        if mean_m is None:
+            mean_m = fit.mean_m if as_is else iso_mean(fit)
+        tests = loop_dev + mean_m[None, :] + draws
         vecs = [_iso_vector(lay, t) for t in tests]
         return np.array([v[0] for v in vecs]), np.array([v[1] for v in vecs])
 
@@ -1363,15 +1399,16 @@ def diagnose_iso(
         parameters: dict[str, float],
         own_m: FloatArray | None,
         tail: dict[str, Any],
+        mean_m: FloatArray | None = None,
     ) -> dict[str, Any]:
         """The candidate's significance, ISO gap and prediction (its fit against ``none``,
-        the fit without a candidate on the same channel; an in-loop candidate, with its own
-        change of the stops ``own_m``, is fitted on the interferometer's channel)."""
+        the fit without a candidate on the same channel; an in-loop candidate has its own
+        change of the stops ``own_m`` and its readings on the interferometer ``mean_m``)."""
         name = head["name"]
         gain = none.nll - fit.nll
         nulls = np.asarray(null_gain[name])
         floor = max(float(np.quantile(nulls, 0.95)), float(chi2.ppf(0.999, dof)))
-        pa, pt = predict(fit, own_m is not None)
+        pa, pt = predict(fit, mean_m=mean_m)
         gap = _z_gap(meas_axis, meas_tgt, pa, pt, u)
         # What the candidate adds to the "none" fit: the change of the fitted readings (the
         # loop's nuisance takes what it can) and the scatter beyond the none fit's.
@@ -1421,13 +1458,21 @@ def diagnose_iso(
             )
         )
         bar.update(3 + i)
-    resid_iso = dev - model_mean_iso
-    none_iso = _fit(resid_iso, empty, False, v0_iso, tol, dirf, half)[0]
+    resid_in = in_dev - in_loop_dev.mean(axis=0)
+    none_in = _fit(resid_in, empty, False, v0_in, tol, dirf, half)[0]
     for i, ic in enumerate(in_loop):
         sc = scans[ic.name]
-        fit = _fit_in_loop(resid_iso, sc, v0_iso, tol, dirf, half)
+        fit = _fit_in_loop(resid_in, sc, v0_in, tol, dirf, half)
         value = float(fit.beta[0])
-        eff, extra = sc.at(value)
+        _, extra = sc.at(value)
+        eff = sc.position_at(value)
+        if in_channel == "interferometer":
+            mean_iso = fit.mean_m
+        else:
+            # The effect on the table, with the offset and the loop's nuisance refitted on
+            # the interferometer's deviations.
+            base_fit = _fit(dev - model_mean_iso - eff, empty, False, v0, tol, dirf, half)[0]
+            mean_iso = base_fit.mean_m + eff
         params = {ic.parameter: value}
         if ic.random:
             params["stop_scatter_rms_m"] = math.sqrt(extra)
@@ -1446,10 +1491,11 @@ def diagnose_iso(
                 {"name": ic.name, "what": ic.what},
                 ic.dof,
                 fit,
-                none_iso,
+                none_in,
                 params,
                 fit.effect_m,
-                {"in_loop": True, "fitted_channel": "interferometer", "scan": scan},
+                {"in_loop": True, "fitted_channel": in_channel, "scan": scan},
+                mean_iso,
             )
         )
         bar.update(3 + len(candidates) + i)
