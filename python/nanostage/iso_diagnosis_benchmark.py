@@ -53,9 +53,11 @@ def run_iso_benchmark(
     executor: Executor | Any | None = None,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
+    encoder: bool = False,
 ) -> dict[str, Any]:
     """Run ``cases`` blind cases from ``seed`` and write benchmark.json, benchmark.md and
-    each case's measurement (cases/) to ``out`` (whole or not at all). Returns the summary."""
+    each case's measurement (cases/) to ``out`` (whole or not at all); with ``encoder``,
+    the cases' files have the encoder's readings. Returns the summary."""
     n = int_arg("cases", cases, 1, MAX_CASES)
     sd = int_arg("seed", seed, 0, 2**32 - 1)
     s = IsoDiagnosisSettings() if settings is None else settings
@@ -67,7 +69,7 @@ def run_iso_benchmark(
         for i in range(n):
             hidden = _case_effect(i, sd)
             case = draw_case(hidden, sd * 100_000 + i)
-            path = write_case(case, folder / "cases" / f"case_{i:04d}.csv")
+            path = write_case(case, folder / "cases" / f"case_{i:04d}.csv", encoder=encoder)
             t0 = time.perf_counter()
             meas = read_iso_measurement(path, travel_m=(0.0, TRAVEL_M))
             rep = diagnose_iso(meas, system, s, threads=threads, executor=executor)
@@ -102,6 +104,7 @@ def run_iso_benchmark(
             bar.update(i + 1)
         bar.update(n, final=True)
         summary = _summary(rows, sd, s)
+        summary["encoder_readings"] = bool(encoder)
         write_json(summary, folder / "benchmark.json")
         (folder / "benchmark.md").write_text(markdown(summary), encoding="utf-8")
     return summary
@@ -160,7 +163,8 @@ def markdown(summary: dict[str, Any]) -> str:
     """The benchmark's summary in Markdown."""
     s = summary
     lines = [
-        f"# ISO-level diagnosis: blind benchmark (seed {s['seed']}, {s['cases']} cases)",
+        f"# ISO-level diagnosis: blind benchmark (seed {s['seed']}, {s['cases']} cases"
+        + (", with the encoder's readings)" if s.get("encoder_readings") else ")"),
         "",
         f"- top-1 (hidden effect is the verdict): **{_pct(s['top1'])}** of "
         f"{s['effect_cases']}; counting a hidden effect named as indistinguishable: "
