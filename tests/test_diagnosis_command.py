@@ -134,15 +134,15 @@ def test_command_weights_and_the_stacked_gap() -> None:
     exps = [_measured(s, [100e-6], "a", seed=1), _measured(s, [-100e-6, 100e-6], "b", seed=2)]
     systems = {e.name: s for e in exps}
     st = DiagnosisSettings()
-    weights, floor, floors = command_weights(exps, systems, Q, st)
+    floors = experiment_floors_m(exps, Q)
+    weights = command_weights(exps, systems, floors, Q, st)
     gain = proportional_gain_v_per_m(s)
     assert set(weights) == {"a", "b"}
     assert weights["a"] == pytest.approx(1.0 / gain, rel=1e-12)
-    assert floor == experiment_floors_m(exps, Q)["a"] == floors["b"]
-    off, _, _ = command_weights(exps, systems, Q, dc.replace(st, command_channel=False))
+    off = command_weights(exps, systems, floors, Q, dc.replace(st, command_channel=False))
     assert off == {}
     without = [dc.replace(e, command_v=None) for e in exps]
-    assert command_weights(without, systems, Q, st)[0] == {}
+    assert command_weights(without, systems, floors, Q, st) == {}
 
     name = "plant.dahl.coulomb_force_n"
     free = [(name, Param(name=name, unit="N", lower=20.0, upper=40.0, initial=30.4))]
@@ -306,7 +306,8 @@ def test_bad_commands_are_named_before_any_fitting(tmp_path: Path) -> None:
     assert set(warnings) == {"b", "c"}
     assert "'b'" in warnings["b"] and "constant (0.2 V)" in warnings["b"]
     assert "'c'" in warnings["c"] and "75%" in warnings["c"] and "±6 V" in warnings["c"]
-    weights, _, _ = command_weights([good, constant, clipped], systems, Q, DiagnosisSettings())
+    three = [good, constant, clipped]
+    weights = command_weights(three, systems, experiment_floors_m(three, Q), Q, DiagnosisSettings())
     assert set(weights) == {"a"}
     # Millivolts: an error naming the experiment, the value and the limit, raised by the
     # manifest's set-up before any fitting.

@@ -261,9 +261,10 @@ def diagnose_experiments(
         nominal, (), lambda s, v: s, st.n_starts_nominal, st.seed
     )
     ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
-    cmd_weights, _, _ = command_weights(
+    cmd_weights = command_weights(
         list(every.values()),
         {n: ctx.adapt(nominal, e) for n, e in every.items()},
+        floors,
         nominal.encoder.count_m,
         st,
     )
@@ -417,12 +418,13 @@ def diagnose_experiments(
 def command_weights(
     experiments: Sequence[Experiment],
     systems: Mapping[str, System],
+    floors: Mapping[str, float],
     count_m: float,
     st: DiagnosisSettings,
-) -> tuple[dict[str, float], float, dict[str, float]]:
-    """The weight of each experiment's command gap against its position gap, m/V (by name),
-    and the noise floors of the gap (overall, and per experiment), m. ``systems``: each
-    experiment's model (its controller gains).
+) -> dict[str, float]:
+    """The weight of each experiment's command gap against its position gap, m/V (by name).
+    ``systems``: each experiment's model (its controller gains); ``floors``: each
+    experiment's position noise floor, m (:func:`floors_m`).
 
     With :attr:`DiagnosisSettings.command_channel`, an experiment with a measured command
     gets the weight ``position floor / command floor`` (:func:`experiment_floors_m`,
@@ -433,17 +435,15 @@ def command_weights(
     the position error that would make it. A constant command, or one clipped at the rails
     for most of the experiment (:func:`command_problems`), is left out. The experiment's gap
     then stacks both channels, and its floor is the root mean square of the two floors in
-    position units (equal to the position's: each channel is at its floor together).
-    Without a command (or a usable floor) the weight is 0 and the floors are the
-    position's."""
-    floor, floors = floors_m(experiments, count_m)
+    position units, equal to the position's (each channel is at its floor together), so
+    the floors stay the position's. Without a command (or a usable floor) there is no
+    weight."""
     if not st.command_channel or all(e.command_v is None for e in experiments):
-        return {}, floor, floors
+        return {}
     gains = {n: proportional_gain_v_per_m(s) for n, s in systems.items()}
     cmd = command_floors_v(experiments, count_m, floors, gains)
     _, unusable = command_problems(experiments, systems)
-    weights = {n: floors[n] / f for n, f in cmd.items() if f > 0.0 and n not in unusable}
-    return weights, floor, floors
+    return {n: floors[n] / f for n, f in cmd.items() if f > 0.0 and n not in unusable}
 
 
 def refine_names(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
