@@ -315,6 +315,41 @@ def test_a_one_case_benchmark_scores_its_case(tmp_path: Path) -> None:
     assert "Confusion" in (tmp_path / "b" / "benchmark.md").read_text(encoding="utf-8")
 
 
+@pytest.mark.parametrize("encoder", [False, True])
+def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, encoder: bool
+) -> None:
+    import nanostage.iso_diagnosis_benchmark as ibm
+
+    # The diagnosis itself is the library's (tested above): here only what the option
+    # changes, the cases' files and what the diagnosis reads from them.
+    seen: list[Any] = []
+
+    def stub(meas: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
+        seen.append(meas)
+        gap = {"figure_gap_rms_m": 1e-7, "iso_gap": 1.0}
+        return {
+            "verdict": "none",
+            "indistinguishable": [],
+            "candidates": [],
+            "gap_before": gap,
+            "gap_after": gap,
+            "figure_gap_shrink": 0.0,
+        }
+
+    monkeypatch.setattr(ibm, "diagnose_iso", stub)
+    out = tmp_path / "b"
+    argv = ["iso-diagnose-benchmark", "--cases", "1", "--seed", "5", "--quiet", "--out", str(out)]
+    assert main(argv + ["--encoder"] * encoder) == 0
+    header = (out / "cases" / "case_0000.csv").read_text(encoding="utf-8").splitlines()[0]
+    assert ("encoder_m" in header.split(",")) is encoder
+    assert (seen[0].encoder_m is not None) is encoder
+    summary = json.loads((out / "benchmark.json").read_text(encoding="utf-8"))
+    assert summary["encoder_readings"] is encoder
+    title = (out / "benchmark.md").read_text(encoding="utf-8").splitlines()[0]
+    assert ("with the encoder's readings" in title) is encoder
+
+
 def test_without_matplotlib_the_report_is_written_with_a_note(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -433,6 +433,7 @@ def _iso_diagnose_benchmark(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=not args.quiet,
         log=None if args.quiet else _log_line,
+        encoder=args.encoder,
     )
     print(
         f"top-1 {_pct(s['top1'], '.0%')} (up to ties {_pct(s['top1_up_to_ties'], '.0%')}), "
@@ -770,6 +771,13 @@ def _build_parser() -> argparse.ArgumentParser:
     ibm.add_argument("--cases", type=_integer, default=16, help="number of cases (default 16)")
     ibm.add_argument("--seed", type=_integer, default=1, help="seed of the cases (default 1)")
     ibm.add_argument("--out", default="iso-diagnose-benchmark", help="output directory")
+    ibm.add_argument(
+        "--encoder",
+        action="store_true",
+        help="write the encoder's readings (encoder_m) in the cases' files: the chain's "
+        "candidates are then fitted on the interferometer minus the encoder, the in-loop "
+        "ones on the encoder",
+    )
     ibm.add_argument("--quiet", action="store_true", help="no per-case lines")
     ibm.set_defaults(func=_iso_diagnose_benchmark, options={"cases": "--cases", "seed": "--seed"})
     mo = sub.add_parser("model", help="model files (docs/model-file.md)")
