@@ -377,6 +377,24 @@ def test_every_error_is_one_line_with_exit_code_2(
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files.values())
 
 
+@pytest.mark.parametrize(
+    ("argv", "label"),
+    [
+        (["iso-diagnose", "{tmp}/m.csv", "--preset", "sed", "--out", "{tmp}/d"], "--preset"),
+        (["model", "export", "sed", "--out", "{tmp}/m.toml"], "preset"),
+    ],
+)
+def test_an_unknown_preset_is_named_with_the_nearest_and_every_preset(
+    cli: Run, tmp_path: Path, argv: list[str], label: str
+) -> None:
+    code, _, err = cli(*[a.format(tmp=tmp_path) for a in argv])
+    assert code == 2
+    assert one_error_line(err) == (
+        f"nanostage {argv[0]}: {label} 'sed' is unknown (did you mean 'seed'?); the presets "
+        f"are: {', '.join(nanostage.presets.preset_names())}"
+    )
+
+
 def test_debug_shows_the_traceback(cli: Run, tmp_path: Path) -> None:
     for argv in (
         ["--debug", "diagnose-benchmark", "--cases", "0"],

@@ -139,6 +139,22 @@ def _load_model_option(args: argparse.Namespace) -> Any:
     return load_model(args.model)
 
 
+def _preset_option(name: str, label: str) -> Any:
+    """The System of the preset ``name`` given as ``label`` (the option or argument as the
+    user typed it: ``--preset``, ``preset``); an unknown name is a ValueError naming it, the
+    nearest preset and every preset."""
+    from .config import did_you_mean
+    from .presets import preset_names, preset_system
+
+    names = preset_names()
+    if name not in names:
+        raise ValueError(
+            f"{label} {name!r} is unknown{did_you_mean(name, names)}; the presets are: "
+            f"{', '.join(names)}"
+        )
+    return preset_system(name)
+
+
 def _table1_model(args: argparse.Namespace) -> Any:
     """``--model`` for the Table 1 studies: loaded, and checked to be a Table 1 axis; and
     ``--gains``, checked to go with it."""
@@ -371,10 +387,9 @@ def _iso_gap(args: argparse.Namespace) -> int:
 
 
 def _iso_diagnose(args: argparse.Namespace) -> int:
-    from .config import did_you_mean
     from .iso_diagnosis import IsoDiagnosisSettings, write_iso_diagnosis
     from .measurement import read_iso_measurement
-    from .presets import PRESET_TRAVEL_M, preset_names, preset_system
+    from .presets import PRESET_TRAVEL_M
     from .studies.paper_campaigns import check_threads
 
     # Every argument, the model and the output folder are checked before any work; the
@@ -385,13 +400,7 @@ def _iso_diagnose(args: argparse.Namespace) -> int:
     if args.model is not None:
         system = _load_model_option(args)
     else:
-        names = preset_names()
-        if args.preset not in names:
-            raise ValueError(
-                f"--preset {args.preset!r} is unknown{did_you_mean(args.preset, names)}; the "
-                f"presets are: {', '.join(names)}"
-            )
-        system = preset_system(args.preset)
+        system = _preset_option(args.preset, "--preset")
         if travel is None:
             travel = (0.0, PRESET_TRAVEL_M[args.preset])
     check_output_dir(args.out)
@@ -498,23 +507,16 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _model_export(args: argparse.Namespace) -> int:
-    from .config import did_you_mean
     from .model_file import save_model
-    from .presets import preset_names, preset_system
 
-    names = preset_names()
-    if args.preset not in names:
-        raise ValueError(
-            f"preset {args.preset!r} is unknown{did_you_mean(args.preset, names)}; the presets "
-            f"are: {', '.join(names)}"
-        )
+    system = _preset_option(args.preset, "preset")
     out = Path(args.out)
     if out.is_dir():
         raise ValueError(f"--out {out} is a folder: expected a file name (e.g. model.toml)")
     if not out.parent.is_dir():
         raise ValueError(f"--out {out}: the folder {out.parent} does not exist")
     save_model(
-        preset_system(args.preset),
+        system,
         out,
         provenance={
             "source": f"preset {args.preset}",
