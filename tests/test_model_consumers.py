@@ -94,7 +94,11 @@ def test_exported_seed_model_gives_the_preset_result(
     argv, name = COMMANDS[command]
     assert _run(*argv, "--out", str(tmp_path / "preset")) == 0
     assert _run(*argv, "--model", str(models["seed"]), "--out", str(tmp_path / "model")) == 0
-    assert _json(tmp_path / "model" / name) == _json(tmp_path / "preset" / name)
+    with_model, with_preset = _json(tmp_path / "model" / name), _json(tmp_path / "preset" / name)
+    if command == "campaigns":  # the one result that names its model
+        assert with_preset.pop("model") == "seed preset"
+        assert with_model.pop("model") == f"file {models['seed']}"
+    assert with_model == with_preset
 
 
 @pytest.mark.parametrize("command", list(COMMANDS))

@@ -9,8 +9,10 @@ from pathlib import Path
 
 import pytest
 
+from nanostage import presets
 from nanostage.cli import main
 from nanostage.studies.paper_campaigns import (
+    GIVEN_MODEL_NAME,
     CampaignSettings,
     _calibrate,
     _readings,
@@ -85,8 +87,38 @@ def test_reproduce_is_unchanged_by_default_and_runs_campaigns_on_request(
     res = json.loads((out / "campaigns.json").read_text(encoding="utf-8"))
     assert res["settings"]["n_trials"] == 2
     assert set(res["calibration"]) == {"A_up", "R_up", "A_up_pooled", "R_up_pooled"}
-    assert (out / "campaigns.md").read_text(encoding="utf-8").startswith("# ISO 230-2")
+    md = (out / "campaigns.md").read_text(encoding="utf-8")
+    assert md.startswith("# ISO 230-2")
+    assert res["model"] == "seed preset" and "\nSeed axis, Table 1 gains per step size" in md
     assert "Calibration" in capsys.readouterr().out
+
+
+def test_campaigns_on_a_model_file_name_the_file_not_the_seed_axis(tmp_path: Path) -> None:
+    model = tmp_path / "axis.model.toml"
+    assert main(["model", "export", "seed", "--out", str(model)]) == 0
+    out = tmp_path / "r"
+    args = ["reproduce", "--out", str(out), "--no-plot", "--campaigns", "--quiet"]
+    argv = [*args, "--campaign-trials", "2", "--threads", "1", "--model", str(model)]
+    assert main(argv) == 0
+    res = json.loads((out / "campaigns.json").read_text(encoding="utf-8"))
+    assert res["model"] == f"file {model}"
+    md = (out / "campaigns.md").read_text(encoding="utf-8")
+    assert f"\nAxis of the model file {model}, Table 1 gains per step size" in md
+    assert "Seed axis" not in md
+
+
+def test_the_model_name_defaults_and_is_checked() -> None:
+    st = CampaignSettings(repeats=2, n_trials=2, spreads=(0.0,))
+    seed = presets.seed()
+    res = paper_campaigns(st, threads=1, model=seed)
+    assert res["model"] == GIVEN_MODEL_NAME and "Axis of the model a given System" in markdown(res)
+    # A result written before the model was recorded is the seed axis's.
+    del res["model"]
+    assert "\nSeed axis, " in markdown(res)
+    with pytest.raises(ValueError, match="model_name = 'x' is given without a model"):
+        paper_campaigns(st, model_name="x")
+    with pytest.raises(ValueError, match="model_name = '' is invalid: expected a non-empty"):
+        paper_campaigns(st, model=seed, model_name="")
 
 
 def test_backlash_width_is_checked_before_any_work(tmp_path: Path) -> None:

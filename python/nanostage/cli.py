@@ -214,6 +214,7 @@ def _reproduce(args: argparse.Namespace) -> int:
                 log=None if args.quiet else _log_line,
                 model=model,
                 gains=args.gains,
+                model_name=None if model is None else f"file {args.model}",
             )
             print()
             print(res["markdown"])

@@ -59,7 +59,9 @@ from ..output import staged_output, write_json
 from .reproduce import GainSource, study_system
 
 __all__ = [
+    "GIVEN_MODEL_NAME",
     "PAPER_FIGURES_M",
+    "SEED_PRESET_NAME",
     "CampaignSettings",
     "check_threads",
     "paper_campaigns",
@@ -69,6 +71,10 @@ __all__ = [
 
 #: The paper's ISO 230-2 figures by step size [m].
 PAPER_FIGURES_M: Final[dict[float, float]] = {100e-6: 3.19e-6, 1e-3: 1.83e-6}
+#: The result's ``model`` without a model: the seed preset.
+SEED_PRESET_NAME: Final[str] = "seed preset"
+#: The result's ``model`` with a model (a System) given without a name.
+GIVEN_MODEL_NAME: Final[str] = "a given System (no name given)"
 #: Largest backlash width of the campaigns [m] (five times the gearhead's 20 µm).
 MAX_BACKLASH_M: Final[float] = 1e-4
 #: Calibration step and prediction step [m].
@@ -275,25 +281,30 @@ def paper_campaigns(
     log: Callable[[str], None] | None = None,
     model: System | None = None,
     gains: GainSource = "table1",
+    model_name: str | None = None,
 ) -> dict[str, Any]:
     """Scan, calibrate on the 100 µm figure (on A↑ and on R↑ separately) and predict 1 mm.
 
     ``model``: the axis (default: the seed preset), with the Table 1 gains of each step
     size in place of its PID gains, or with ``gains="model"`` its own gains at both step
     sizes (:func:`nanostage.studies.reproduce.study_system`); checked before any campaign
-    runs.
+    runs. ``model_name``: what the result and the Markdown call the model (e.g. its file's
+    path); default :data:`SEED_PRESET_NAME` without a ``model``, :data:`GIVEN_MODEL_NAME`
+    with one.
 
     Returns
     -------
     dict
-        ``settings``, ``paper_m``, ``scan`` (readings per spread for both step sizes),
-        ``calibration`` (per reading: the spread, whether 3.19 µm was reached, the 100 µm
-        value at that spread and the 1 mm prediction with its ratio to 1.83 µm),
-        ``better_reading`` and ``compute_s``. Lengths in metres.
+        ``settings``, ``model`` (the model's name), ``gains``, ``paper_m``, ``scan``
+        (readings per spread for both step sizes), ``calibration`` (per reading: the
+        spread, whether 3.19 µm was reached, the 100 µm value at that spread and the 1 mm
+        prediction with its ratio to 1.83 µm), ``better_reading`` and ``compute_s``.
+        Lengths in metres.
     """
     st = st or CampaignSettings()
     for step in (CALIBRATION_STEP_M, PREDICTION_STEP_M):
         _system(step, 0.0, st.backlash_width_m, model, gains)
+    used_model = _model_name(model, model_name)
     say = log or (lambda _msg: None)
     t0 = time.perf_counter()
     cache: dict[tuple[float, float], dict[str, Any]] = {}
@@ -343,6 +354,7 @@ def paper_campaigns(
         better = min(errs, key=errs.__getitem__)
     return {
         "settings": asdict(st),
+        "model": used_model,
         "gains": gains,
         "paper_m": {"100um": PAPER_FIGURES_M[100e-6], "1mm": PAPER_FIGURES_M[1e-3]},
         "paper_ratio_100um_to_1mm": PAPER_FIGURES_M[100e-6] / PAPER_FIGURES_M[1e-3],
@@ -351,6 +363,29 @@ def paper_campaigns(
         "better_reading": better,
         "compute_s": time.perf_counter() - t0,
     }
+
+
+def _model_name(model: System | None, model_name: str | None) -> str:
+    if model_name is not None:
+        if model is None:
+            raise ConfigError(
+                f"model_name = {model_name!r} is given without a model: the campaigns run on "
+                "the seed preset (give model= as well, or no model_name)"
+            )
+        if not isinstance(model_name, str) or not model_name.strip():
+            raise ConfigError(
+                f"model_name = {model_name!r} is invalid: expected a non-empty string (e.g. "
+                "the model file's path)"
+            )
+        return model_name
+    return SEED_PRESET_NAME if model is None else GIVEN_MODEL_NAME
+
+
+def _axis_words(res: dict[str, Any]) -> str:
+    """The axis the campaigns ran on, for the Markdown: "Seed axis" for the seed preset
+    (also for a result without ``model``, written before it was recorded)."""
+    name = res.get("model", SEED_PRESET_NAME)
+    return "Seed axis" if name == SEED_PRESET_NAME else f"Axis of the model {name}"
 
 
 def _um(v: float) -> str:
@@ -372,7 +407,7 @@ def markdown(res: dict[str, Any]) -> str:
     lines = [
         "# ISO 230-2 step campaigns: calibration on 100 µm, prediction of 1 mm",
         "",
-        f"Seed axis{_backlash_words(st['backlash_width_m'])}, {gain_words}, "
+        f"{_axis_words(res)}{_backlash_words(st['backlash_width_m'])}, {gain_words}, "
         "`StochasticFriction(level_spread=s)` "
         f"(log-normal per-trial friction level, mean 1). Step cycle: {st['repeats']} steps, "
         f"dwell {st['dwell_s']} s, return {st['return_s']} s; {st['n_trials']} trials per "
@@ -442,6 +477,7 @@ def write_paper_campaigns(
     log: Callable[[str], None] | None = None,
     model: System | None = None,
     gains: GainSource = "table1",
+    model_name: str | None = None,
 ) -> dict[str, Any]:
     """Run :func:`paper_campaigns`, write ``campaigns.json`` and ``campaigns.md``.
 
@@ -451,7 +487,7 @@ def write_paper_campaigns(
     check_threads(threads)
     with staged_output(out_dir, "reproduce --campaigns") as folder:
         return write_paper_campaigns_into(
-            folder, st, threads=threads, log=log, model=model, gains=gains
+            folder, st, threads=threads, log=log, model=model, gains=gains, model_name=model_name
         )
 
 
@@ -463,12 +499,15 @@ def write_paper_campaigns_into(
     log: Callable[[str], None] | None = None,
     model: System | None = None,
     gains: GainSource = "table1",
+    model_name: str | None = None,
 ) -> dict[str, Any]:
     """:func:`write_paper_campaigns` writing straight into an existing ``folder`` (a staged
     one)."""
     check_threads(threads)
     out = Path(folder)
-    res = paper_campaigns(st, threads=threads, log=log, model=model, gains=gains)
+    res = paper_campaigns(
+        st, threads=threads, log=log, model=model, gains=gains, model_name=model_name
+    )
     write_json(res, out / "campaigns.json", indent=2)
     md = markdown(res)
     (out / "campaigns.md").write_text(md, encoding="utf-8")
