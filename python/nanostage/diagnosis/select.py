@@ -13,7 +13,7 @@ Significance (documented in docs/diagnosis.md)
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -158,18 +158,31 @@ def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> flo
 
 
 def pick_winner(
-    results: Sequence[CandidateResult], st: DiagnosisSettings
+    results: Sequence[CandidateResult],
+    st: DiagnosisSettings,
+    signature_distance: Callable[[CandidateResult], float] | None = None,
+    signature_margin: float = 0.0,
 ) -> CandidateResult | None:
     """The candidate a round selects from its results (best validation gap first): the
     first significant one; with :attr:`DiagnosisSettings.occam_tie_break`, among it and the
     significant candidates the data cannot tell from it, the one with the largest Occam
-    factor (the first in gap order when equal). None when nothing is significant."""
+    factor (the first in gap order when equal). None when nothing is significant.
+
+    With ``signature_distance`` (a candidate's fitted model → χ² of its simulated
+    signature against the measured one, :mod:`~nanostage.diagnosis.signatures`) and
+    ``signature_margin`` > 0, the tied candidates are first narrowed to those whose
+    signature lies within ``signature_margin`` (χ²) of the closest one: what the gap cannot
+    tell apart, the traces' limit cycles, rest commands, ramp commands and breakaways may.
+    Without them, or with one tied candidate, the choice is as above."""
     best = next((r for r in results if r.significant), None)
-    if best is None or not st.occam_tie_break:
-        return best
+    if best is None:
+        return None
+    tied = [r for r in results if r.significant and (r is best or indistinguishable(best, r))]
+    if signature_distance is not None and signature_margin > 0.0 and len(tied) > 1:
+        d = [signature_distance(r) for r in tied]
+        closest = min(d)
+        tied = [r for r, x in zip(tied, d, strict=True) if x <= closest + signature_margin]
+    if not st.occam_tie_break:
+        return tied[0]
     # The largest Occam factor is the least complexity (the first in gap order when equal).
-    return simplest_of_ties(
-        results,
-        lambda r: r.significant and (r is best or indistinguishable(best, r)),
-        lambda r: -r.log_occam,
-    )
+    return simplest_of_ties(tied, lambda r: True, lambda r: -r.log_occam)

@@ -1,0 +1,343 @@
+"""Signatures: a few physical features of a set of traces that tell the aliases of the gap
+apart where the gap itself cannot.
+
+Backlash, computation and sensor delay, drive compliance and amplifier lag all give limit
+cycles and phase lag; an offset force and asymmetric friction both shift the command by
+direction; friction laws trade off against each other. Two candidates that the validation
+gap cannot tell apart (:func:`~nanostage.diagnosis.select.indistinguishable`) may still
+leave different marks on the traces, and these marks are measured directly:
+
+``hunting_fraction``
+    the share of settled holds whose position error at the end still spans more than
+    :data:`HUNTING_QUANTA` reading quanta (a limit cycle);
+``hold_amplitude_m``
+    peak-to-peak position error at the end of the holds that hunt (median): the size of
+    the limit cycle (a backlash's hunting spans about twice its width; a delay's
+    cycle is a few counts);
+``hold_frequency_hz``
+    the limit cycle's frequency in the holds that hunt (zero crossings of the error about
+    its median): a delay, a lag and a dead band set it differently;
+``rest_command_split_v`` and ``rest_command_mean_v``
+    the command at rest after moves in each direction (median of each): their half
+    difference is what friction holds on each side, their mean a standing force (an offset
+    force needs a standing command in both directions, a friction asymmetry does not);
+``ramp_level_v``, ``ramp_bias_v`` and ``ramp_slope_v_s_per_m``
+    the steady command on constant-velocity ramps, fitted per direction as
+    ``level + slope·|v|``: half the difference of the levels (the sliding friction), their
+    mean (an offset or an asymmetry of the levels) and the mean slope (viscous friction;
+    needs ramps at two or more speeds);
+``breakaway_per_decade_v``
+    the rise of the peak command of a move (until it has settled at its next target) per
+    decade of the rest before it, among moves of the same step
+    (dwell-dependent breakaway; needs three or more distinct rest durations).
+
+Each feature comes with its standard error (from its scatter over holds, ramps or moves,
+at least the reading's or the command's resolution), and :func:`distance` compares the
+measured features with a model's simulated ones in units of both standard errors (a χ²
+over the features both have). A feature the traces do not contain (no hunting, no ramps,
+no command) is left out, never guessed."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..config import System
+from ..experiment import Experiment
+from .objective import (
+    SETTLE_WINDOW,
+    SimulationCache,
+    hold_intervals,
+    simulate_readings_and_commands,
+)
+from .settings import Adapt
+
+__all__ = [
+    "SIGNATURE_UNITS",
+    "Feature",
+    "SignatureJudge",
+    "distance",
+    "signatures_of",
+]
+
+#: Unit of every signature feature.
+SIGNATURE_UNITS: dict[str, str] = {
+    "hunting_fraction": "-",
+    "hold_amplitude_m": "m",
+    "hold_frequency_hz": "Hz",
+    "rest_command_split_v": "V",
+    "rest_command_mean_v": "V",
+    "ramp_level_v": "V",
+    "ramp_bias_v": "V",
+    "ramp_slope_v_s_per_m": "V·s/m",
+    "breakaway_per_decade_v": "V",
+}
+
+#: A hold hunts when its settled error spans more than this many reading quanta.
+HUNTING_QUANTA = 4.0
+#: Shortest constant-velocity stretch of a ramp used, samples (its first half is skipped as
+#: the transient).
+MIN_RAMP_SAMPLES = 40
+
+
+@dataclass(frozen=True, slots=True)
+class Feature:
+    """One signature feature: its value and standard error (same unit)."""
+
+    value: float
+    std_error: float
+
+    def to_dict(self) -> dict[str, float]:
+        return {"value": self.value, "std_error": self.std_error}
+
+
+Trace = tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike | None]
+
+
+def _median_feature(values: Sequence[float], floor: float) -> Feature | None:
+    """The median of ``values`` with its standard error (1.25·σ/√n, at least ``floor``);
+    None without values."""
+    v = np.asarray([x for x in values if math.isfinite(x)], dtype=np.float64)
+    if v.size == 0:
+        return None
+    se = 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(v.size) if v.size > 1 else abs(floor)
+    return Feature(float(np.median(v)), max(se, floor))
+
+
+def _ramps(ref: npt.NDArray[np.float64]) -> list[tuple[int, int, float]]:
+    """(start, stop, velocity per sample) of each constant-velocity stretch of the
+    reference with a nonzero velocity and at least :data:`MIN_RAMP_SAMPLES` samples."""
+    d = np.diff(ref)
+    out = []
+    k, n = 0, len(d)
+    while k < n:
+        if d[k] == 0.0:
+            k += 1
+            continue
+        j = k
+        tol = 1e-6 * abs(d[k])
+        while j + 1 < n and abs(d[j + 1] - d[k]) <= tol:
+            j += 1
+        if j + 1 - k >= MIN_RAMP_SAMPLES:
+            out.append((k + 1, j + 2, float(np.mean(d[k : j + 1]))))
+        k = j + 1
+    return out
+
+
+def signatures_of(
+    traces: Sequence[Trace],
+    sample_period_s: float,
+    count_m: float,
+    command_resolution_v: float = 0.0,
+) -> dict[str, Feature]:
+    """The signature features of a set of traces, each ``(reference_m, position_m,
+    command_v or None)`` sampled every ``sample_period_s``. ``count_m``: the reading's
+    resolution, the floor of the position features' standard errors;
+    ``command_resolution_v``: the command's (0: none known)."""
+    q = count_m
+    cq = command_resolution_v
+    hunting: list[bool] = []
+    amplitudes: list[float] = []
+    frequencies: list[float] = []
+    rest: dict[int, list[float]] = {1: [], -1: []}
+    ramp_rows: list[tuple[int, float, float]] = []  # (direction, |v| m/s, command V)
+    # (size of the move's first step in counts, log10 rest s, peak |command| V)
+    breakaway: list[tuple[int, float, float]] = []
+    for reference, position, command in traces:
+        ref = np.asarray(reference, dtype=np.float64)
+        pos = np.asarray(position, dtype=np.float64)
+        cmd = None if command is None else np.asarray(command, dtype=np.float64)
+        holds = hold_intervals(ref)
+        for i, (a, b) in enumerate(holds):
+            if cmd is not None and b < len(ref):
+                # The rest before a move (the first one included) and the move's peak
+                # command: what it took to break away after resting that long.
+                stop = holds[i + 1][1] if i + 1 < len(holds) else len(cmd)
+                w = cmd[b:stop]
+                breakaway.append(
+                    (
+                        round(abs(float(ref[b] - ref[b - 1])) / q),
+                        math.log10((b - a) * sample_period_s),
+                        float(np.max(np.abs(w))),
+                    )
+                )
+            if a == 0:
+                continue  # the rest before the first move: no direction, no settling
+            step = float(ref[a] - ref[a - 1]) if a > 0 else 0.0
+            if step == 0.0:
+                step = float(ref[a] - ref[max(a - 2, 0)])
+            n_tail = min(SETTLE_WINDOW, (b - a) // 2)
+            if n_tail < 10:
+                continue
+            err = pos[b - n_tail : b] - ref[b - 1]
+            p2p = float(np.ptp(err))
+            hunting.append(p2p > HUNTING_QUANTA * q)
+            if hunting[-1]:
+                amplitudes.append(p2p)
+                x = err - np.median(err)
+                s = np.sign(x[x != 0])
+                crossings = int(np.count_nonzero(s[1:] != s[:-1]))
+                frequencies.append(crossings / (2.0 * n_tail * sample_period_s))
+            if cmd is not None and step != 0.0:
+                rest[1 if step > 0 else -1].append(float(np.mean(cmd[b - n_tail : b])))
+        if cmd is not None:
+            for a, b, v in _ramps(ref):
+                mid = a + (b - a) // 2
+                ramp_rows.append(
+                    (1 if v > 0 else -1, abs(v) / sample_period_s, float(np.mean(cmd[mid:b])))
+                )
+    out: dict[str, Feature] = {}
+    if hunting:
+        # The share of settled holds that hunt, and the size and frequency of their cycle.
+        n = len(hunting)
+        p = sum(hunting) / n
+        out["hunting_fraction"] = Feature(p, max(math.sqrt(p * (1.0 - p) / n), 0.5 / n))
+    f = _median_feature(amplitudes, q)
+    if f is not None:
+        out["hold_amplitude_m"] = f
+    f = _median_feature(frequencies, 1.0 / (SETTLE_WINDOW * sample_period_s))
+    if f is not None:
+        out["hold_frequency_hz"] = f
+    up, down = _median_feature(rest[1], cq), _median_feature(rest[-1], cq)
+    if up is not None and down is not None:
+        se = math.hypot(up.std_error, down.std_error) / 2.0
+        out["rest_command_split_v"] = Feature((up.value - down.value) / 2.0, se)
+        out["rest_command_mean_v"] = Feature((up.value + down.value) / 2.0, se)
+    out.update(_ramp_features(ramp_rows, cq))
+    out.update(_breakaway_feature(breakaway, cq))
+    return out
+
+
+def _line(
+    x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+) -> tuple[float, float, float, float]:
+    """Least-squares ``y = c0 + c1·x``: (c0, c1, se0, se1); a constant (c1 = 0, se1 = ∞)
+    when ``x`` takes one value."""
+    if np.ptp(x) == 0.0:
+        se = float(np.std(y, ddof=1) / math.sqrt(y.size)) if y.size > 1 else 0.0
+        return float(np.mean(y)), 0.0, se, math.inf
+    a = np.column_stack([np.ones_like(x), x])
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    dof = max(y.size - 2, 1)
+    s2 = float(np.sum((y - a @ coef) ** 2)) / dof
+    cov = s2 * np.linalg.inv(a.T @ a)
+    return float(coef[0]), float(coef[1]), math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+
+
+def _ramp_features(rows: Sequence[tuple[int, float, float]], cq: float) -> dict[str, Feature]:
+    by_dir = {d: [(v, c) for dd, v, c in rows if dd == d] for d in (1, -1)}
+    if not by_dir[1] or not by_dir[-1]:
+        return {}
+    fits = {}
+    for d, pts in by_dir.items():
+        arr = np.asarray(pts, dtype=np.float64)
+        fits[d] = _line(arr[:, 0], arr[:, 1])
+    (c0p, c1p, s0p, s1p), (c0n, c1n, s0n, s1n) = fits[1], fits[-1]
+    se0 = max(math.hypot(s0p, s0n) / 2.0, cq)
+    out = {
+        "ramp_level_v": Feature((c0p - c0n) / 2.0, se0),
+        "ramp_bias_v": Feature((c0p + c0n) / 2.0, se0),
+    }
+    if math.isfinite(s1p) and math.isfinite(s1n):
+        # The command rises with speed in + moves and falls (more negative) in − moves.
+        out["ramp_slope_v_s_per_m"] = Feature(
+            (c1p - c1n) / 2.0, max(math.hypot(s1p, s1n) / 2.0, 1e-12)
+        )
+    return out
+
+
+def _breakaway_feature(rows: Sequence[tuple[int, float, float]], cq: float) -> dict[str, Feature]:
+    """The slope of the peak command on log10 of the rest before the move, within groups of
+    moves of the same first step (a larger step needs a larger command whatever the rest):
+    each group's values less its means, pooled; three or more distinct (step, rest) pairs
+    in groups with two or more rests are needed."""
+    groups: dict[int, list[tuple[float, float]]] = {}
+    for key, x, y in rows:
+        groups.setdefault(key, []).append((x, y))
+    xs: list[float] = []
+    ys: list[float] = []
+    distinct = 0
+    for pts in groups.values():
+        arr = np.asarray(pts, dtype=np.float64)
+        levels = np.unique(np.round(arr[:, 0], 3)).size
+        if levels < 2:
+            continue
+        distinct += levels
+        xs.extend(arr[:, 0] - arr[:, 0].mean())
+        ys.extend(arr[:, 1] - arr[:, 1].mean())
+    if distinct < 3:
+        return {}
+    x, y = np.asarray(xs), np.asarray(ys)
+    slope = float(np.dot(x, y) / np.dot(x, x))
+    dof = max(x.size - 1 - sum(1 for p in groups.values() if len(p) > 1), 1)
+    s2 = float(np.sum((y - slope * x) ** 2)) / dof
+    se = math.sqrt(s2 / float(np.dot(x, x)))
+    return {"breakaway_per_decade_v": Feature(slope, max(se, cq))}
+
+
+def distance(measured: Mapping[str, Feature], simulated: Mapping[str, Feature]) -> float:
+    """χ² of a model's simulated signature against the measured one: the sum over the
+    features both have of ``(measured − simulated)² / (se_measured² + se_simulated²)``."""
+    total = 0.0
+    for name, m in measured.items():
+        s = simulated.get(name)
+        if s is None:
+            continue
+        var = m.std_error**2 + s.std_error**2
+        if var > 0.0 and math.isfinite(var):
+            total += (m.value - s.value) ** 2 / var
+    return total
+
+
+class SignatureJudge:
+    """The measured signature of a diagnosis's experiments, and any model's simulated one
+    on the same experiments (each with its own controller: ``adapt``), for the comparison
+    of candidates the gap cannot tell apart. Simulations go through ``cache`` when given
+    (a :class:`~nanostage.diagnosis.objective.SimulationCache`: the fits have usually run
+    them already)."""
+
+    def __init__(
+        self,
+        experiments: Sequence[Experiment],
+        adapt: Adapt,
+        count_m: float,
+        sample_period_s: float,
+        cache: SimulationCache | None = None,
+        threads: int = 0,
+    ) -> None:
+        self.experiments = list(experiments)
+        self.adapt = adapt
+        self.count_m = count_m
+        self.sample_period_s = sample_period_s
+        self.cache = cache
+        self.threads = threads
+        self.measured = signatures_of(
+            [(e.reference_m, e.position_m, e.command_v) for e in self.experiments],
+            sample_period_s,
+            count_m,
+        )
+
+    def simulated(self, system: System) -> dict[str, Feature]:
+        """The signature of ``system`` simulated on the experiments (the command channel
+        only where the experiment has a measured command, as in the measured signature)."""
+        systems = [self.adapt(system, e) for e in self.experiments]
+        if self.cache is None:
+            sims = simulate_readings_and_commands(systems, self.experiments, self.threads)
+        else:
+            sims = self.cache.simulate(systems, self.experiments, self.threads)
+        return signatures_of(
+            [
+                (e.reference_m, reading, None if e.command_v is None else command)
+                for e, (reading, command) in zip(self.experiments, sims, strict=True)
+            ],
+            self.sample_period_s,
+            self.count_m,
+        )
+
+    def distance(self, system: System) -> float:
+        """:func:`distance` of ``system``'s simulated signature from the measured one."""
+        return distance(self.measured, self.simulated(system))

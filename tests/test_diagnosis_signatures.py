@@ -1,0 +1,192 @@
+"""Signature features of traces (limit cycles, rest and ramp commands, breakaway), checked
+on synthetic traces whose features are known exactly, and their use in the choice between
+candidates the gap cannot tell apart."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from nanostage.diagnosis.select import pick_winner
+from nanostage.diagnosis.settings import DiagnosisSettings
+from nanostage.diagnosis.signatures import Feature, distance, signatures_of
+
+T = 1e-3  # sample period, s
+Q = 1e-7  # count, m
+
+
+def _steps(targets_m: list[float], hold: int) -> np.ndarray:
+    return np.concatenate([np.full(hold, t) for t in targets_m])
+
+
+def test_hunting_amplitude_and_frequency_of_a_square_limit_cycle() -> None:
+    hold = 200
+    ref = _steps([0.0, 1e-4, 0.0, 1e-4], hold)
+    period = 10  # samples: 100 Hz
+    amp = 3e-6  # ± around the target: 6 µm peak to peak
+    cycle = np.where((np.arange(ref.size) // (period // 2)) % 2 == 0, amp, -amp)
+    pos = ref + cycle
+    sig = signatures_of([(ref, pos, None)], T, Q)
+    assert sig["hunting_fraction"].value == 1.0
+    assert sig["hold_amplitude_m"].value == pytest.approx(2 * amp, rel=1e-12)
+    # 50-sample tail: 10 half periods → 9 or 10 sign changes → 90–100 Hz.
+    assert 90.0 <= sig["hold_frequency_hz"].value <= 100.0
+    assert "rest_command_split_v" not in sig  # no command: no command features
+
+
+def test_settled_holds_do_not_hunt_and_have_no_cycle_features() -> None:
+    ref = _steps([0.0, 1e-4, 0.0], 200)
+    pos = ref + np.where(np.arange(ref.size) % 2 == 0, Q, 0.0)  # one count of dither
+    sig = signatures_of([(ref, pos, None)], T, Q)
+    assert sig["hunting_fraction"].value == 0.0
+    assert "hold_amplitude_m" not in sig and "hold_frequency_hz" not in sig
+
+
+def test_rest_command_split_and_mean_are_exact() -> None:
+    ref = _steps([0.0, 1e-4, 0.0, 1e-4, 0.0], 200)
+    up, down = 0.7, -0.3
+    cmd = np.zeros(ref.size)
+    for k in range(1, 5):
+        cmd[k * 200 : (k + 1) * 200] = up if k % 2 == 1 else down
+    sig = signatures_of([(ref, ref.copy(), cmd)], T, Q)
+    assert sig["rest_command_split_v"].value == pytest.approx((up - down) / 2)
+    assert sig["rest_command_mean_v"].value == pytest.approx((up + down) / 2)
+
+
+def _ramp(v_m_per_s: float, n: int, start_m: float) -> np.ndarray:
+    return start_m + v_m_per_s * T * np.arange(1, n + 1)
+
+
+def test_ramp_level_bias_and_slope_are_recovered() -> None:
+    level, bias, slope = 0.4, 0.05, 300.0  # V, V, V·s/m
+    refs, cmds = [], []
+    for v in (2e-5, 1e-4, 5e-4):
+        for d in (1.0, -1.0):
+            ref = np.concatenate([np.zeros(30), _ramp(d * v, 400, 0.0)])
+            c = np.zeros(ref.size)
+            c[30:] = d * (level + slope * v) + bias
+            refs.append(ref)
+            cmds.append(c)
+    sig = signatures_of([(r, r.copy(), c) for r, c in zip(refs, cmds, strict=True)], T, Q)
+    assert sig["ramp_level_v"].value == pytest.approx(level, rel=1e-9)
+    assert sig["ramp_bias_v"].value == pytest.approx(bias, rel=1e-9)
+    assert sig["ramp_slope_v_s_per_m"].value == pytest.approx(slope, rel=1e-9)
+
+
+def test_ramps_at_one_speed_give_levels_but_no_slope() -> None:
+    refs = [np.concatenate([np.zeros(30), _ramp(d * 1e-4, 400, 0.0)]) for d in (1.0, -1.0)]
+    cmds = [
+        np.where(np.arange(r.size) >= 30, d * 0.5, 0.0) for r, d in zip(refs, (1, -1), strict=True)
+    ]
+    sig = signatures_of([(r, r.copy(), c) for r, c in zip(refs, cmds, strict=True)], T, Q)
+    assert sig["ramp_level_v"].value == pytest.approx(0.5)
+    assert "ramp_slope_v_s_per_m" not in sig
+
+
+def test_breakaway_slope_per_decade_of_rest_within_equal_steps() -> None:
+    beta, p0 = 0.2, 1.0  # V per decade, V at 1 s
+    traces = []
+    for rest in (50, 300, 1500):
+        ref = np.concatenate([np.zeros(rest), np.full(300, 3 * Q)])
+        cmd = np.zeros(ref.size)
+        cmd[rest + 20] = p0 + beta * math.log10(rest * T)  # the breakaway peak
+        traces.append((ref, ref.copy(), cmd))
+    # A large step with a short rest and a saturated command: another group, which must
+    # not bend the slope.
+    big = np.concatenate([np.zeros(20), np.full(300, 1e-3)])
+    traces.append((big, big.copy(), np.where(np.arange(big.size) >= 20, 6.0, 0.0)))
+    sig = signatures_of(traces, T, Q)
+    assert sig["breakaway_per_decade_v"].value == pytest.approx(beta, rel=1e-9)
+
+
+def test_breakaway_needs_three_rests() -> None:
+    traces = []
+    for rest in (50, 300):
+        ref = np.concatenate([np.zeros(rest), np.full(300, 3 * Q)])
+        traces.append((ref, ref.copy(), np.where(np.arange(ref.size) == rest + 5, 1.0, 0.0)))
+    assert "breakaway_per_decade_v" not in signatures_of(traces, T, Q)
+
+
+def test_distance_is_the_chi_square_over_shared_features() -> None:
+    m = {"a": Feature(1.0, 0.3), "b": Feature(2.0, 1.0), "only_measured": Feature(5.0, 1.0)}
+    s = {"a": Feature(2.0, 0.4), "b": Feature(2.0, 0.5), "only_simulated": Feature(0.0, 1.0)}
+    assert distance(m, s) == pytest.approx(1.0 / (0.09 + 0.16))
+    assert distance(m, m) == 0.0
+
+
+def _result(name: str, rms: float, ms: list[float], occam: float) -> object:
+    from nanostage.diagnosis.fit import Fit
+    from nanostage.diagnosis.select import CandidateResult
+
+    fit = Fit(values={}, std_errors={}, train_rms_m=rms, n_evaluations=1, system=None)  # type: ignore[arg-type]
+    return CandidateResult(
+        effect=name,
+        fit=fit,
+        fold_fits=[fit],
+        validation_ms=np.asarray(ms),
+        validation_command_ms=[None] * len(ms),
+        command_ratio=None,
+        validation_rms_m=rms,
+        shrink=0.5,
+        weighted_shrink=0.5,
+        p_value=0.0,
+        significant=True,
+        reasons=[],
+        log_occam=occam,
+    )
+
+
+def test_signatures_narrow_a_tie_and_change_nothing_else() -> None:
+    st = DiagnosisSettings()
+    # Two candidates the validation gap cannot tell apart (same per-experiment gaps within
+    # noise); "b" is the simpler by its Occam factor.
+    a = _result("a", 1.0e-7, [1.0e-14, 1.1e-14, 0.9e-14], occam=-5.0)
+    b = _result("b", 1.02e-7, [1.1e-14, 1.0e-14, 1.0e-14], occam=-1.0)
+    results = [a, b]
+    assert pick_winner(results, st) is b  # today's rule: the Occam factor
+    assert pick_winner(results, st, lambda r: 0.0, 4.0) is b  # signatures equal: same
+    far = {"a": 1.0, "b": 30.0}
+    assert pick_winner(results, st, lambda r: far[r.effect], 4.0) is a
+    assert pick_winner(results, st, lambda r: far[r.effect], 0.0) is b  # margin 0: off
+    near = {"a": 1.0, "b": 4.5}
+    assert pick_winner(results, st, lambda r: near[r.effect], 4.0) is b
+    no_occam = dataclasses.replace(st, occam_tie_break=False)
+    assert pick_winner(results, no_occam) is a
+    assert pick_winner(results, no_occam, lambda r: {"a": 30.0, "b": 1.0}[r.effect], 4.0) is b
+
+
+def test_judge_gives_the_generating_model_distance_zero_and_an_offset_force_more() -> None:
+    from nanostage import presets
+    from nanostage.diagnosis.candidates import applicable_candidates
+    from nanostage.diagnosis.objective import simulate_readings_and_commands
+    from nanostage.diagnosis.signatures import SignatureJudge
+    from nanostage.experiment import Experiment
+
+    system = presets.seed()
+    q = system.encoder.count_m
+    t = system.sample_period_s
+    # Steps both ways and ramps both ways at two speeds, with rests between.
+    parts = [np.zeros(100)]
+    for target in (2e-4, 0.0, 2e-4, 0.0):
+        parts.append(np.full(300, target))
+    x = 0.0
+    for v in (1e-3, -1e-3, 4e-3, -4e-3):
+        r = x + v * t * np.arange(1, 301)
+        parts += [r, np.full(150, r[-1])]
+        x = r[-1]
+    ref = np.concatenate(parts)
+    time_s = t * np.arange(ref.size)
+    probe = Experiment(name="probe", time_s=time_s, reference_m=ref, position_m=np.zeros(ref.size))
+    ((reading, command),) = simulate_readings_and_commands([system], [probe])
+    measured = Experiment(
+        name="m", time_s=time_s, reference_m=ref, position_m=reading, command_v=command
+    )
+    judge = SignatureJudge([measured], lambda s, e: s, q, t)
+    assert {"rest_command_split_v", "ramp_level_v", "ramp_slope_v_s_per_m"} <= set(judge.measured)
+    assert judge.distance(system) == 0.0  # deterministic: the same simulation
+    (offset,), _ = applicable_candidates(system, ["offset_force"])
+    pushed = offset.apply(system, [0.3 * offset.params[0].upper])
+    assert judge.distance(pushed) > 9.0  # a standing force shifts the commands by 3σ or more
