@@ -350,17 +350,10 @@ def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
     assert ("with the encoder's readings" in title) is encoder
 
 
+@pytest.mark.usefixtures("without_matplotlib")
 def test_without_matplotlib_the_report_is_written_with_a_note(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import importlib.util
-
-    real = importlib.util.find_spec
-    monkeypatch.setattr(
-        importlib.util,
-        "find_spec",
-        lambda name, *a, **k: None if name == "matplotlib" else real(name, *a, **k),
-    )
     _small_scans(monkeypatch)
     path = iso_truth.write_case(iso_truth.draw_case("none", 5), tmp_path / "n.csv")
     out = tmp_path / "out"

@@ -3,7 +3,6 @@ tables and say in one line how to get the figures."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
@@ -11,15 +10,10 @@ import pytest
 from nanostage.cli import main
 
 
+@pytest.mark.usefixtures("without_matplotlib")
 def test_reproduce_without_matplotlib_writes_the_table(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    real = importlib.util.find_spec
-    monkeypatch.setattr(
-        importlib.util,
-        "find_spec",
-        lambda name, *a, **k: None if name == "matplotlib" else real(name, *a, **k),
-    )
     out = tmp_path / "r"
     assert main(["reproduce", "--out", str(out)]) == 0
     captured = capsys.readouterr()
