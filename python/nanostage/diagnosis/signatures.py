@@ -51,7 +51,9 @@ from ..experiment import Experiment
 from .objective import (
     SETTLE_WINDOW,
     SimulationCache,
+    autocorrelation_time,
     hold_intervals,
+    reading_quantum,
     simulate_readings_and_commands,
 )
 from .settings import Adapt
@@ -98,13 +100,29 @@ class Feature:
 Trace = tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike | None]
 
 
-def _median_feature(values: Sequence[float], floor: float) -> Feature | None:
-    """The median of ``values`` with its standard error (1.25·σ/√n, at least ``floor``);
-    None without values."""
-    v = np.asarray([x for x in values if math.isfinite(x)], dtype=np.float64)
+def _window_mean(x: npt.NDArray[np.float64], floor: float) -> tuple[float, float]:
+    """The mean of a window of samples and its standard error: the samples' spread over the
+    square root of their number of independent values (the count over the integrated
+    autocorrelation time), at least ``floor`` (the signal's resolution: a constant
+    quantised signal's mean is known to its quantum, not better)."""
+    tau = autocorrelation_time(x - float(np.mean(x))) if x.size >= 4 else 1.0
+    se = float(np.std(x)) * math.sqrt(tau / x.size) if x.size > 1 else 0.0
+    return float(np.mean(x)), max(se, floor)
+
+
+def _median_feature(
+    values: Sequence[float], floor: float, errors: Sequence[float] | None = None
+) -> Feature | None:
+    """The median of ``values`` with its standard error: the larger of their scatter's
+    (1.25·σ/√n) and their own errors' (``errors``: RMS over √n), at least ``floor``; None
+    without values."""
+    v = np.asarray(values, dtype=np.float64)
     if v.size == 0:
         return None
-    se = 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(v.size) if v.size > 1 else abs(floor)
+    se = 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(v.size) if v.size > 1 else 0.0
+    if errors is not None and len(errors):
+        own = float(np.sqrt(np.mean(np.square(errors)))) / math.sqrt(v.size)
+        se = max(se, 1.2533 * own)
     return Feature(float(np.median(v)), max(se, floor))
 
 
@@ -143,8 +161,9 @@ def signatures_of(
     hunting: list[bool] = []
     amplitudes: list[float] = []
     frequencies: list[float] = []
-    rest: dict[int, list[float]] = {1: [], -1: []}
-    ramp_rows: list[tuple[int, float, float]] = []  # (direction, |v| m/s, command V)
+    rest: dict[int, list[tuple[float, float]]] = {1: [], -1: []}  # (command V, its error)
+    # (direction, |v| m/s, command V, its error)
+    ramp_rows: list[tuple[int, float, float, float]] = []
     # (size of the move's first step in counts, log10 rest s, peak |command| V)
     breakaway: list[tuple[int, float, float]] = []
     for reference, position, command in traces:
@@ -183,13 +202,12 @@ def signatures_of(
                 crossings = int(np.count_nonzero(s[1:] != s[:-1]))
                 frequencies.append(crossings / (2.0 * n_tail * sample_period_s))
             if cmd is not None and step != 0.0:
-                rest[1 if step > 0 else -1].append(float(np.mean(cmd[b - n_tail : b])))
+                rest[1 if step > 0 else -1].append(_window_mean(cmd[b - n_tail : b], cq))
         if cmd is not None:
             for a, b, v in _ramps(ref):
                 mid = a + (b - a) // 2
-                ramp_rows.append(
-                    (1 if v > 0 else -1, abs(v) / sample_period_s, float(np.mean(cmd[mid:b])))
-                )
+                mean, se = _window_mean(cmd[mid:b], cq)
+                ramp_rows.append((1 if v > 0 else -1, abs(v) / sample_period_s, mean, se))
     out: dict[str, Feature] = {}
     if hunting:
         # The share of settled holds that hunt, and the size and frequency of their cycle.
@@ -202,7 +220,9 @@ def signatures_of(
     f = _median_feature(frequencies, 1.0 / (SETTLE_WINDOW * sample_period_s))
     if f is not None:
         out["hold_frequency_hz"] = f
-    up, down = _median_feature(rest[1], cq), _median_feature(rest[-1], cq)
+    up, down = (
+        _median_feature([m for m, _ in rest[d]], cq, [e for _, e in rest[d]]) for d in (1, -1)
+    )
     if up is not None and down is not None:
         se = math.hypot(up.std_error, down.std_error) / 2.0
         out["rest_command_split_v"] = Feature((up.value - down.value) / 2.0, se)
@@ -213,29 +233,40 @@ def signatures_of(
 
 
 def _line(
-    x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+    x: npt.NDArray[np.float64], y: npt.NDArray[np.float64], se: npt.NDArray[np.float64]
 ) -> tuple[float, float, float, float]:
-    """Least-squares ``y = c0 + c1·x``: (c0, c1, se0, se1); a constant (c1 = 0, se1 = ∞)
-    when ``x`` takes one value."""
+    """Weighted least squares ``y = c0 + c1·x`` (each ``y`` with its standard error
+    ``se``): (c0, c1, se0, se1), the errors scaled up by the reduced χ² when the points
+    scatter more than their errors say; a constant (c1 = 0, se1 = ∞) when ``x`` takes one
+    value. Without errors (all zero) the fit is unweighted, its errors from the scatter."""
+    # Equal weights when a point claims no error at all (an exact, noise-free signal).
+    weighted = bool(np.all(se > 0.0))
+    w = 1.0 / se**2 if weighted else np.ones_like(y)
     if np.ptp(x) == 0.0:
-        se = float(np.std(y, ddof=1) / math.sqrt(y.size)) if y.size > 1 else 0.0
-        return float(np.mean(y)), 0.0, se, math.inf
+        c0 = float(np.sum(w * y) / np.sum(w))
+        chi2 = float(np.sum(w * (y - c0) ** 2)) / max(y.size - 1, 1)
+        scale = max(chi2, 1.0) if weighted else chi2
+        return c0, 0.0, math.sqrt(scale / float(np.sum(w))), math.inf
     a = np.column_stack([np.ones_like(x), x])
-    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-    dof = max(y.size - 2, 1)
-    s2 = float(np.sum((y - a @ coef) ** 2)) / dof
-    cov = s2 * np.linalg.inv(a.T @ a)
+    aw = a * w[:, None]
+    cov = np.linalg.inv(a.T @ aw)
+    coef = cov @ (aw.T @ y)
+    dof = y.size - 2
+    chi2 = float(np.sum(w * (y - a @ coef) ** 2)) / dof if dof > 0 else float(weighted)
+    cov = cov * (max(chi2, 1.0) if weighted else chi2)
     return float(coef[0]), float(coef[1]), math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
 
 
-def _ramp_features(rows: Sequence[tuple[int, float, float]], cq: float) -> dict[str, Feature]:
-    by_dir = {d: [(v, c) for dd, v, c in rows if dd == d] for d in (1, -1)}
+def _ramp_features(
+    rows: Sequence[tuple[int, float, float, float]], cq: float
+) -> dict[str, Feature]:
+    by_dir = {d: [(v, c, e) for dd, v, c, e in rows if dd == d] for d in (1, -1)}
     if not by_dir[1] or not by_dir[-1]:
         return {}
     fits = {}
     for d, pts in by_dir.items():
         arr = np.asarray(pts, dtype=np.float64)
-        fits[d] = _line(arr[:, 0], arr[:, 1])
+        fits[d] = _line(arr[:, 0], arr[:, 1], arr[:, 2])
     (c0p, c1p, s0p, s1p), (c0n, c1n, s0n, s1n) = fits[1], fits[-1]
     se0 = max(math.hypot(s0p, s0n) / 2.0, cq)
     out = {
@@ -244,9 +275,7 @@ def _ramp_features(rows: Sequence[tuple[int, float, float]], cq: float) -> dict[
     }
     if math.isfinite(s1p) and math.isfinite(s1n):
         # The command rises with speed in + moves and falls (more negative) in − moves.
-        out["ramp_slope_v_s_per_m"] = Feature(
-            (c1p - c1n) / 2.0, max(math.hypot(s1p, s1n) / 2.0, 1e-12)
-        )
+        out["ramp_slope_v_s_per_m"] = Feature((c1p - c1n) / 2.0, math.hypot(s1p, s1n) / 2.0)
     return out
 
 
@@ -315,10 +344,15 @@ class SignatureJudge:
         self.sample_period_s = sample_period_s
         self.cache = cache
         self.threads = threads
+        # The measured command's resolution (its smallest change between samples) floors
+        # the command features' errors, of the measured and the simulated signatures alike.
+        quanta = [reading_quantum(e.command_v) for e in self.experiments if e.command_v is not None]
+        self.command_resolution_v = float(np.median(quanta)) if quanta else 0.0
         self.measured = signatures_of(
             [(e.reference_m, e.position_m, e.command_v) for e in self.experiments],
             sample_period_s,
             count_m,
+            self.command_resolution_v,
         )
 
     def simulated(self, system: System) -> dict[str, Feature]:
@@ -336,6 +370,7 @@ class SignatureJudge:
             ],
             self.sample_period_s,
             self.count_m,
+            self.command_resolution_v,
         )
 
     def distance(self, system: System) -> float:
