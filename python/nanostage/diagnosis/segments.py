@@ -341,9 +341,13 @@ def _reference_moves(ref: FloatArray) -> list[tuple[int, int]]:
     return out
 
 
-def _limit_cycle(
+def limit_cycle(
     y: FloatArray, dt: float, min_correlation: float, quantum: float
 ) -> LimitCycle | None:
+    """The periodic oscillation in the samples ``y`` (every ``dt`` s) of a hold: the
+    autocorrelation's first peak after its first zero, at a lag that fits three times in the
+    samples and correlates at least ``min_correlation``; None when there is none (or the
+    samples span less than half a ``quantum``)."""
     from scipy.signal import correlate
 
     n = y.size
@@ -551,7 +555,7 @@ def segment_arrays(
         final = float(np.median(x[final_start:b])) if final_start < b else math.nan
         cycle = None
         if h < b:
-            cycle = _limit_cycle(x[h:b], dt, limit_cycle_min_correlation, quantum)
+            cycle = limit_cycle(x[h:b], dt, limit_cycle_min_correlation, quantum)
         moves.append(
             Move(
                 index=i,

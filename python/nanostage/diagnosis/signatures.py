@@ -9,14 +9,15 @@ leave different marks on the traces, and these marks are measured directly:
 
 ``hunting_fraction``
     the share of settled holds whose position error at the end still spans more than
-    :data:`HUNTING_QUANTA` reading quanta (a limit cycle);
+    :data:`HUNTING_QUANTA` reading quanta and repeats itself (a limit cycle);
 ``hold_amplitude_m``
     peak-to-peak position error at the end of the holds that hunt (median): the size of
     the limit cycle (a backlash's hunting spans about twice its width; a delay's
     cycle is a few counts);
 ``hold_frequency_hz``
-    the limit cycle's frequency in the holds that hunt (zero crossings of the error about
-    its median): a delay, a lag and a dead band set it differently;
+    the limit cycle's frequency in the holds that hunt (the autocorrelation's period,
+    :func:`~nanostage.diagnosis.segments.limit_cycle`): a delay, a lag and a dead band set
+    it differently;
 ``rest_command_split_v`` and ``rest_command_mean_v``
     the command at rest after moves in each direction (median of each): their half
     difference is what friction holds on each side, their mean a standing force (an offset
@@ -49,13 +50,13 @@ import numpy.typing as npt
 from ..config import System
 from ..experiment import Experiment
 from .objective import (
-    SETTLE_WINDOW,
     SimulationCache,
     autocorrelation_time,
     hold_intervals,
     reading_quantum,
     simulate_readings_and_commands,
 )
+from .segments import limit_cycle
 from .settings import Adapt
 
 __all__ = [
@@ -79,8 +80,11 @@ SIGNATURE_UNITS: dict[str, str] = {
     "breakaway_per_decade_v": "V",
 }
 
-#: A hold hunts when its settled error spans more than this many reading quanta.
+#: A hold hunts when its settled error spans more than this many reading quanta and
+#: repeats itself (autocorrelation at the cycle's period at least
+#: :data:`LIMIT_CYCLE_MIN_CORRELATION`, the segmentation's default).
 HUNTING_QUANTA = 4.0
+LIMIT_CYCLE_MIN_CORRELATION = 0.5
 #: Shortest constant-velocity stretch of a ramp used, samples (its first half is skipped as
 #: the transient).
 MIN_RAMP_SAMPLES = 40
@@ -189,18 +193,23 @@ def signatures_of(
             step = float(ref[a] - ref[a - 1]) if a > 0 else 0.0
             if step == 0.0:
                 step = float(ref[a] - ref[max(a - 2, 0)])
-            n_tail = min(SETTLE_WINDOW, (b - a) // 2)
+            # The hold's second half: settled, and long enough for a slow cycle to repeat.
+            n_tail = (b - a) // 2
             if n_tail < 10:
                 continue
             err = pos[b - n_tail : b] - ref[b - 1]
             p2p = float(np.ptp(err))
-            hunting.append(p2p > HUNTING_QUANTA * q)
-            if hunting[-1]:
-                amplitudes.append(p2p)
-                x = err - np.median(err)
-                s = np.sign(x[x != 0])
-                crossings = int(np.count_nonzero(s[1:] != s[:-1]))
-                frequencies.append(crossings / (2.0 * n_tail * sample_period_s))
+            # A hold hunts when its error spans several quanta and repeats itself (the
+            # segmentation's limit-cycle detector): its size and frequency are the cycle's.
+            cycle = (
+                limit_cycle(err, sample_period_s, LIMIT_CYCLE_MIN_CORRELATION, q)
+                if p2p > HUNTING_QUANTA * q
+                else None
+            )
+            hunting.append(cycle is not None)
+            if cycle is not None:
+                amplitudes.append(2.0 * cycle.amplitude_m)
+                frequencies.append(1.0 / cycle.period_s)
             if cmd is not None and step != 0.0:
                 rest[1 if step > 0 else -1].append(_window_mean(cmd[b - n_tail : b], cq))
         if cmd is not None:
@@ -217,7 +226,9 @@ def signatures_of(
     f = _median_feature(amplitudes, q)
     if f is not None:
         out["hold_amplitude_m"] = f
-    f = _median_feature(frequencies, 1.0 / (SETTLE_WINDOW * sample_period_s))
+    # The period is found to about half a sample: δf ≈ f²·T/2.
+    f_med = float(np.median(frequencies)) if frequencies else 0.0
+    f = _median_feature(frequencies, 0.5 * sample_period_s * f_med**2)
     if f is not None:
         out["hold_frequency_hz"] = f
     up, down = (
