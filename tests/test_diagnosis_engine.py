@@ -698,6 +698,24 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     # The free nominal parameters alone and refitted with the selected effect.
     assert set(r["selected_model_parameters"]) == set(r["nominal_parameters"]) != set()
     assert "| with the selected effects |" in md
+    # Signatures: measured on all four experiments (no command: the hold features only),
+    # simulated by the nominal, the selected model and the selected candidate's fit, whose
+    # model is the selected one (one effect: the same system, the same features).
+    sig = r["signatures"]
+    assert sorted(sig["experiments"]) == ["e0", "e1", "e2", "e3"]
+    assert set(sig["measured"]) == {"hunting_fraction"} | (
+        {"hold_amplitude_m", "hold_frequency_hz"}
+        if sig["measured"]["hunting_fraction"]["value"]
+        else set()
+    )
+    rows = {(m["model"], m["effect"]): m for m in sig["models"]}
+    assert set(rows) == {
+        ("nominal", None),
+        ("selected model", None),
+        ("candidate", "asymmetric_friction"),
+    }
+    assert all(m["distance"] >= 0.0 for m in rows.values())
+    assert "## Signatures, measured vs models" in md and "| χ² from measured | 0 |" in md
 
 
 def test_indistinguishable_candidates_are_reported_as_ties() -> None:

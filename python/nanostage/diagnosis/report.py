@@ -277,6 +277,62 @@ def _limit_cycles(gap: Any) -> str:
     return _table(["Experiment", "Move", "Amplitude [µm]", "Period [ms]"], rows)
 
 
+def _signatures(sig: Any) -> str:
+    """The report's ``signatures`` as a table: each feature measured (± its standard
+    error) and simulated by each compared model, and each model's χ² from the measured."""
+    if not isinstance(sig, Mapping) or not isinstance(sig.get("measured"), Mapping):
+        return ""
+    measured = sig["measured"]
+    models = [m for m in sig.get("models") or [] if isinstance(m, Mapping)]
+
+    def label(m: Mapping[str, Any]) -> str:
+        eff = m.get("effect")
+        return f"`{_md_escape(str(eff))}`" if eff else _md_escape(str(m.get("model")))
+
+    def cell(d: Any, key: str, with_error: bool) -> str:
+        if not isinstance(d, Mapping):
+            return "—"
+        v = _fmt(key, d.get("value"))
+        se = _num(d.get("std_error"))
+        return f"{v} ± {_fmt(key, se)}" if with_error and se is not None else v
+
+    head = ["Feature", "measured", *(label(m) for m in models)]
+    rows = []
+    for key, d in measured.items():
+        unit = d.get("unit", "") if isinstance(d, Mapping) else ""
+        name = f"{key}{_unit(key) or (f' [{unit}]' if unit and unit != '-' else '')}"
+        rows.append(
+            [
+                _md_escape(name),
+                cell(d, key, True),
+                *(
+                    cell((m.get("features") or {}).get(key), key, False)
+                    if "error" not in m
+                    else "failed"
+                    for m in models
+                ),
+            ]
+        )
+    rows.append(
+        [
+            "χ² from measured",
+            "0",
+            *(
+                "—" if _num(m.get("distance")) is None else f"{_num(m.get('distance')):.3g}"
+                for m in models
+            ),
+        ]
+    )
+    return (
+        "Physical marks of the effects, measured directly on the traces (all experiments): "
+        "limit cycles in holds (share of holds, size, frequency), the command at rest and "
+        "on ramps by direction, the breakaway against the rest before a move. The χ² "
+        "compares each model's simulated features with the measured ones in units of both "
+        "standard errors: where the gap cannot tell candidates apart, the smaller χ² is "
+        "the better match of these marks.\n\n" + _table(head, rows)
+    )
+
+
 def _nm(v: Any) -> str:
     f = _num(v)
     return "—" if f is None else f"{f * 1e9:.1f}"
@@ -733,6 +789,10 @@ def markdown_report(
     if iso:
         out.append("## ISO 230-2 (final hold positions)\n")
         out.append(iso)
+    sig = _signatures(report.get("signatures"))
+    if sig:
+        out.append("## Signatures, measured vs models\n")
+        out.append(sig)
     lc = _limit_cycles(before)
     if lc:
         out.append("## Limit cycles in hold\n")
@@ -769,6 +829,7 @@ def markdown_report(
         "unexplained",
         "warnings",
         "explained_fraction",
+        "signatures",
         "timing_s",
     }
     extra = [

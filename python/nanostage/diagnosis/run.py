@@ -58,6 +58,8 @@ from .report import write_report
 from .segments import segment
 from .select import CandidateResult, indistinguishable
 from .settings import DiagnosisSettings, print_progress
+from .signatures import SIGNATURE_UNITS, Feature, SignatureJudge
+from .signatures import distance as signature_distance
 
 __all__ = [
     "DISTINGUISHING_EXPERIMENT",
@@ -784,6 +786,74 @@ def assemble_report(
         ],
         "timing_s": out["timing_s"],
         "simulations": dict(out["simulations"]),
+        "signatures": signature_comparison(out, folds, adapt, first),
+    }
+
+
+def _features(sig: Mapping[str, Feature]) -> dict[str, dict[str, Any]]:
+    return {n: f.to_dict() | {"unit": SIGNATURE_UNITS.get(n, "")} for n, f in sorted(sig.items())}
+
+
+def signature_comparison(
+    out: Mapping[str, Any],
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
+    adapt: Any,
+    first_round: Sequence[CandidateResult],
+    top: int = 3,
+) -> dict[str, Any] | None:
+    """The report's ``signatures``: the measured signature of all experiments
+    (:mod:`~nanostage.diagnosis.signatures`: limit cycles in holds, the command at rest
+    and on ramps per direction, breakaway against rest) and the simulated one of the
+    calibrated nominal model, the selected model, and the first round's candidates that
+    matter for the choice (the first selected effect and those the validation data cannot
+    tell from it; with nothing selected, the best ``top`` partial explanations), each with
+    its χ² distance from the measured one. None when the traces have no signature feature.
+    The judge is the engine's (``out["signature_judge"]``) when it has one."""
+    judge: SignatureJudge | None = out.get("signature_judge")
+    if judge is None:
+        nominal = out["nominal"].system
+        seen: dict[str, Experiment] = {}
+        for e in [*folds[0][0], *folds[0][1]]:
+            seen.setdefault(e.name, e)
+        judge = SignatureJudge(
+            list(seen.values()),
+            adapt,
+            nominal.encoder.count_m,
+            nominal.sample_period_s,
+            out.get("cache"),
+        )
+    if not judge.measured:
+        return None
+    selected = list(out["selected"])
+    models: list[tuple[str, str | None, System]] = [
+        ("nominal", None, out["nominal_fits"][0].system)
+    ]
+    if selected:
+        models.append(("selected model", None, out["final_fits"][0].system))
+        ties = set(ties_of_selected([first_round], selected[:1]).get(selected[0], []))
+        picked = [r for r in first_round if r.effect == selected[0] or r.effect in ties]
+    else:
+        picked = [r for r in first_round if r.shrink > 0.0][:top]
+    models += [("candidate", r.effect, r.fit.system) for r in picked]
+    rows = []
+    for kind, effect, system in models:
+        try:
+            sig = judge.simulated(system)
+        except (RuntimeError, ValueError) as exc:
+            rows.append({"model": kind, "effect": effect, "error": str(exc)})
+            continue
+        rows.append(
+            {
+                "model": kind,
+                "effect": effect,
+                "distance": signature_distance(judge.measured, sig),
+                "features": _features(sig),
+            }
+        )
+    return {
+        "experiments": [e.name for e in judge.experiments],
+        "measured": _features(judge.measured),
+        "models": rows,
     }
 
 
