@@ -508,7 +508,11 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _model_export(args: argparse.Namespace) -> int:
+    """Write a preset as a model file whose provenance is the shipped file's, whole
+    (:func:`nanostage.presets.preset_provenance`), naming the preset, the command and the
+    version."""
     from .model_file import save_model
+    from .presets import preset_provenance
 
     system = _preset_option(args.preset, "preset")
     out = Path(args.out)
@@ -520,7 +524,7 @@ def _model_export(args: argparse.Namespace) -> int:
         system,
         out,
         provenance={
-            **_shipped_provenance(args.preset),
+            **preset_provenance(args.preset),
             "preset": args.preset,
             "command": f"nanostage model export {args.preset}",
             "version": __version__,
@@ -528,40 +532,6 @@ def _model_export(args: argparse.Namespace) -> int:
     )
     print(f"wrote {out}")
     return EXIT_OK
-
-
-#: The shipped model file (nanostage/model_files/<file>.model.toml) each preset is read
-#: from, and what the preset is of that file.
-_PRESET_FILES: Final[dict[str, tuple[str, str]]] = {
-    "seed": ("seed", "the file's model (the 1 mm Table 1 gains)"),
-    "emps": ("emps", "the file's model"),
-    "emps_naive": (
-        "emps",
-        "the file's model without Coulomb friction and offset force (mass and viscous "
-        "friction only)",
-    ),
-    "emps_asymmetric": (
-        "emps",
-        "the file's model with provenance.asymmetric (the authors' direction-dependent "
-        "identification) in place of the symmetric one, no offset force",
-    ),
-}
-
-
-def _shipped_provenance(preset: str) -> dict[str, Any]:
-    """The ``[provenance]`` table of the shipped model file the preset is read from (its
-    source, and what the presets need beyond the System: Table 1's gains, each value's
-    unit, source and confidence, the authors' asymmetric identification), with the file's
-    name (``preset_file``) and what the preset is of it (``preset_note``): an exported
-    preset keeps its provenance."""
-    from .presets import _PACKAGE_DIR, _document
-
-    name, note = _PRESET_FILES[preset]
-    return {
-        **_document(name).provenance,
-        "preset_file": f"nanostage/{_PACKAGE_DIR}/{name}.model.toml",
-        "preset_note": note,
-    }
 
 
 # --------------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ Rust tests and benches. Confidence tags follow DOMAIN.md: ``B`` stated in the se
 
 from __future__ import annotations
 
+import copy
 import functools
 import importlib.resources
 import math
@@ -19,7 +20,7 @@ from types import MappingProxyType
 from typing import Any, Final
 
 from . import _core
-from .config import ForceDrivePlant, FpgaPid, Plant, System
+from .config import ForceDrivePlant, FpgaPid, Plant, System, did_you_mean
 from .effects import StaticFrictionMap
 from .model_file import ModelDocument, ModelFileError, parse_model
 
@@ -30,6 +31,7 @@ __all__ = [
     "SEED_PROVENANCE",
     "Provenance",
     "preset_names",
+    "preset_provenance",
     "preset_system",
     "seed",
     "seed_controller",
@@ -49,6 +51,15 @@ class Provenance:
 
 
 _PACKAGE_DIR: Final = "model_files"
+#: The shipped model files (``model_files/<name>.model.toml``) the presets are read from.
+_SEED_FILE: Final = "seed"
+_EMPS_FILE: Final = "emps"
+
+
+def _file_label(name: str) -> str:
+    """The shipped model file ``name`` as the package path that names it in messages and
+    provenance (``nanostage/model_files/<name>.model.toml``)."""
+    return f"nanostage/{_PACKAGE_DIR}/{name}.model.toml"
 
 
 @functools.cache
@@ -56,11 +67,11 @@ def _document(name: str) -> ModelDocument:
     """The shipped model file ``model_files/<name>.model.toml`` read whole (parsed once)."""
     resource = importlib.resources.files(__package__).joinpath(_PACKAGE_DIR, f"{name}.model.toml")
     text = resource.read_text(encoding="utf-8")
-    return parse_model(text, source=f"nanostage/{_PACKAGE_DIR}/{name}.model.toml")
+    return parse_model(text, source=_file_label(name))
 
 
 def _file_error(name: str, message: str) -> ModelFileError:
-    return ModelFileError(f"nanostage/{_PACKAGE_DIR}/{name}.model.toml: {message}")
+    return ModelFileError(f"{_file_label(name)}: {message}")
 
 
 def _number(name: str, key: str, raw: Any) -> float:
@@ -72,18 +83,22 @@ def _number(name: str, key: str, raw: Any) -> float:
 @functools.cache
 def _table1_rows() -> dict[float, tuple[float, float, float]]:
     """Table 1 of the seed paper from the seed file: step size, m -> (Kp, Ki, Kd)."""
-    raw = _document("seed").provenance.get("table1_gains")
+    raw = _document(_SEED_FILE).provenance.get("table1_gains")
     if not isinstance(raw, list) or not raw:
-        raise _file_error("seed", "provenance.table1_gains is missing: expected an array of tables")
+        raise _file_error(
+            _SEED_FILE, "provenance.table1_gains is missing: expected an array of tables"
+        )
     rows: dict[float, tuple[float, float, float]] = {}
     for i, row in enumerate(raw):
         key = f"provenance.table1_gains[{i}]"
         if not isinstance(row, dict) or sorted(row) != ["kd", "ki", "kp", "step_m"]:
-            raise _file_error("seed", f"{key} is invalid: expected a table of step_m, kp, ki, kd")
-        step = _number("seed", f"{key}.step_m", row["step_m"])
+            raise _file_error(
+                _SEED_FILE, f"{key} is invalid: expected a table of step_m, kp, ki, kd"
+            )
+        step = _number(_SEED_FILE, f"{key}.step_m", row["step_m"])
         if not step > 0.0:
-            raise _file_error("seed", f"{key}.step_m = {step!r} is invalid: expected > 0 m")
-        kp, ki, kd = (_number("seed", f"{key}.{k}", row[k]) for k in ("kp", "ki", "kd"))
+            raise _file_error(_SEED_FILE, f"{key}.step_m = {step!r} is invalid: expected > 0 m")
+        kp, ki, kd = (_number(_SEED_FILE, f"{key}.{k}", row[k]) for k in ("kp", "ki", "kd"))
         rows[step] = (kp, ki, kd)
     return rows
 
@@ -91,12 +106,12 @@ def _table1_rows() -> dict[float, tuple[float, float, float]]:
 @functools.cache
 def _seed_system() -> System:
     """The seed file's system (its controller has the 1 mm row of Table 1)."""
-    system = _document("seed").system
+    system = _document(_SEED_FILE).system
     ctl = system.controller
     assert isinstance(ctl, FpgaPid)
     if (ctl.kp, ctl.ki, ctl.kd) != table1_gains(1e-3):
         raise _file_error(
-            "seed",
+            _SEED_FILE,
             f"controller gains (kp, ki, kd) = {(ctl.kp, ctl.ki, ctl.kd)} are not the 1 mm row "
             f"of provenance.table1_gains {table1_gains(1e-3)}",
         )
@@ -104,7 +119,7 @@ def _seed_system() -> System:
 
 
 def _seed_provenance() -> dict[str, Provenance]:
-    raw = _document("seed").provenance.get("values", {})
+    raw = _document(_SEED_FILE).provenance.get("values", {})
     out: dict[str, Provenance] = {}
     for path, entry in raw.items():
         if (
@@ -113,7 +128,7 @@ def _seed_provenance() -> dict[str, Provenance]:
             or not all(isinstance(v, str) for v in entry.values())
         ):
             raise _file_error(
-                "seed",
+                _SEED_FILE,
                 f'provenance.values."{path}" is invalid: expected a table of the strings '
                 "unit, source, confidence",
             )
@@ -219,12 +234,12 @@ def emps(*, asymmetric: bool = False) -> System:
     authors' symmetric identification, or with ``asymmetric`` their direction-dependent one
     (levels and viscous coefficients as mean ± asymmetry; the asymmetric set has no offset).
     """
-    system = _document("emps").system
+    system = _document(_EMPS_FILE).system
     if not asymmetric:
         return system
     plant = system.plant
     assert isinstance(plant, ForceDrivePlant)
-    raw = _document("emps").provenance.get("asymmetric")
+    raw = _document(_EMPS_FILE).provenance.get("asymmetric")
     keys = [
         "coulomb_neg_n",
         "coulomb_pos_n",
@@ -234,10 +249,10 @@ def emps(*, asymmetric: bool = False) -> System:
     ]
     if not isinstance(raw, dict) or sorted(raw) != keys:
         raise _file_error(
-            "emps",
+            _EMPS_FILE,
             f"provenance.asymmetric is invalid: expected a table of {', '.join(keys)}",
         )
-    v = {k: _number("emps", f"provenance.asymmetric.{k}", raw[k]) for k in keys}
+    v = {k: _number(_EMPS_FILE, f"provenance.asymmetric.{k}", raw[k]) for k in keys}
     fc = 0.5 * (v["coulomb_pos_n"] + v["coulomb_neg_n"])
     fv = 0.5 * (v["viscous_pos_n_s_per_m"] + v["viscous_neg_n_s_per_m"])
     friction = StaticFrictionMap(
@@ -263,12 +278,40 @@ def emps_naive() -> System:
     return replace(s, plant=replace(p, friction=friction, external_force_n=0.0))
 
 
+@dataclass(frozen=True, slots=True)
+class _Preset:
+    """A preset: how it is built, the shipped model file it is read from
+    (``model_files/<file>.model.toml``) and what it is of that file."""
+
+    build: Callable[[], System]
+    file: str
+    note: str
+
+
+#: Every preset by name: the one place that says which shipped file each preset is read
+#: from (:data:`PRESETS` and :func:`preset_provenance` are read from it).
+_PRESET_SOURCES: Final[Mapping[str, _Preset]] = MappingProxyType(
+    {
+        "seed": _Preset(seed, _SEED_FILE, "the file's model (the 1 mm Table 1 gains)"),
+        "emps": _Preset(emps, _EMPS_FILE, "the file's model"),
+        "emps_naive": _Preset(
+            emps_naive,
+            _EMPS_FILE,
+            "the file's model without Coulomb friction and offset force (mass and viscous "
+            "friction only)",
+        ),
+        "emps_asymmetric": _Preset(
+            lambda: emps(asymmetric=True),
+            _EMPS_FILE,
+            "the file's model with provenance.asymmetric (the authors' direction-dependent "
+            "identification) in place of the symmetric one, no offset force",
+        ),
+    }
+)
+
 #: Presets by name (the diagnosis manifest's ``[model] preset``).
 PRESETS: dict[str, Callable[[], System]] = {
-    "seed": seed,
-    "emps": emps,
-    "emps_naive": emps_naive,
-    "emps_asymmetric": lambda: emps(asymmetric=True),
+    name: preset.build for name, preset in _PRESET_SOURCES.items()
 }
 
 #: The controller kind of each preset (used when a diagnosis manifest gives none).
@@ -297,3 +340,42 @@ def preset_system(name: str) -> System:
         If there is no such preset.
     """
     return PRESETS[name]()
+
+
+def preset_provenance(name: str) -> dict[str, Any]:
+    """Where the preset ``name`` comes from: the ``[provenance]`` table of the shipped model
+    file it is read from, whole (its ``source``, and for the seed Table 1's gains
+    ``table1_gains`` and each value's unit, source and confidence ``values``, for the EMPS
+    the authors' direction-dependent identification ``asymmetric``), with ``preset_file``,
+    that file's package path (``nanostage/model_files/<file>.model.toml``), and
+    ``preset_note``, what the preset is of that file. ``nanostage model export PRESET``
+    writes it as the model file's provenance (adding ``preset``, ``command`` and
+    ``version``).
+
+    The result is a fresh copy: changing it changes no preset.
+
+    Raises
+    ------
+    ConfigError
+        If there is no such preset (the message names it, the nearest preset and every
+        preset).
+
+    Examples
+    --------
+    >>> import nanostage
+    >>> prov = nanostage.presets.preset_provenance("emps_naive")
+    >>> prov["preset_file"]
+    'nanostage/model_files/emps.model.toml'
+    """
+    preset = _PRESET_SOURCES.get(name) if isinstance(name, str) else None
+    if preset is None:
+        names = tuple(_PRESET_SOURCES)
+        hint = did_you_mean(name, names) if isinstance(name, str) else ""
+        raise _core.ConfigError(
+            f"preset {name!r} is unknown{hint}; the presets are: {', '.join(names)}"
+        )
+    return {
+        **copy.deepcopy(dict(_document(preset.file).provenance)),
+        "preset_file": _file_label(preset.file),
+        "preset_note": preset.note,
+    }
