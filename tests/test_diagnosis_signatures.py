@@ -190,3 +190,15 @@ def test_judge_gives_the_generating_model_distance_zero_and_an_offset_force_more
     (offset,), _ = applicable_candidates(system, ["offset_force"])
     pushed = offset.apply(system, [0.3 * offset.params[0].upper])
     assert judge.distance(pushed) > 9.0  # a standing force shifts the commands by 3σ or more
+
+
+def test_misses_are_the_features_off_by_more_than_three_combined_errors() -> None:
+    from nanostage.diagnosis.signatures import misses
+
+    m = {"a": Feature(1.0, 0.3), "b": Feature(2.0, 0.1), "c": Feature(0.0, 1.0)}
+    s = {"a": Feature(2.0, 0.4), "b": Feature(1.0, 0.1), "c": Feature(2.9, 0.0)}
+    out = misses(m, s)
+    # a: 1.0/0.5 = 2σ (kept out); b: 1.0/0.141 = 7.1σ; c: 2.9/1.0 = 2.9σ (kept out).
+    assert [d["feature"] for d in out] == ["b"]
+    assert out[0]["z"] == pytest.approx(1.0 / math.hypot(0.1, 0.1))
+    assert [d["feature"] for d in misses(m, s, z_min=1.5)] == ["b", "c", "a"]

@@ -475,6 +475,12 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
             "explains it by the selection rules; best partial explanations: "
             + (", ".join(parts) if parts else "none (no candidate shrinks it)")
         )
+    missed = _nominal_misses(report.get("signatures"))
+    if missed:
+        lines.append(
+            "- **Marks the calibrated nominal model misses** (more than 3 standard errors; "
+            "see *Signatures*): " + missed
+        )
     folds = report.get("folds")
     if isinstance(folds, list | tuple) and folds and all(isinstance(f, Mapping) for f in folds):
         n_t = sum(len(f.get("train", [])) for f in folds)
@@ -487,6 +493,30 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     if t is not None:
         lines.append(f"- **Time:** {t:.1f} s")
     return "\n".join(lines) + "\n" if lines else ""
+
+
+def _nominal_misses(sig: Any, top: int = 4) -> str:
+    """The signature features the calibrated nominal model misses, in words."""
+    if not isinstance(sig, Mapping):
+        return ""
+    nominal = next(
+        (
+            m
+            for m in sig.get("models") or []
+            if isinstance(m, Mapping) and m.get("model") == "nominal"
+        ),
+        None,
+    )
+    if nominal is None:
+        return ""
+    parts = []
+    for d in (nominal.get("misses") or [])[:top]:
+        key = str(d.get("feature"))
+        parts.append(
+            f"`{_md_escape(key)}` measured {_fmt(key, d.get('measured'))}, "
+            f"simulated {_fmt(key, d.get('simulated'))} ({float(d.get('z', 0.0)):+.1f}σ)"
+        )
+    return "; ".join(parts)
 
 
 def _evidence(evidence: Sequence[Any]) -> str:

@@ -60,6 +60,7 @@ from .select import CandidateResult, indistinguishable
 from .settings import DiagnosisSettings, print_progress
 from .signatures import SIGNATURE_UNITS, Feature, SignatureJudge
 from .signatures import distance as signature_distance
+from .signatures import misses as signature_misses
 
 __all__ = [
     "DISTINGUISHING_EXPERIMENT",
@@ -807,8 +808,10 @@ def signature_comparison(
     calibrated nominal model, the selected model, and the first round's candidates that
     matter for the choice (the first selected effect and those the validation data cannot
     tell from it; with nothing selected, the best ``top`` partial explanations), each with
-    its χ² distance from the measured one. None when the traces have no signature feature.
-    The judge is the engine's (``out["signature_judge"]``) when it has one."""
+    its χ² distance from the measured one and the features it misses by more than three
+    standard errors (:func:`~nanostage.diagnosis.signatures.misses`). None when the traces
+    have no signature feature. The judge is the engine's (``out["signature_judge"]``) when
+    it has one."""
     judge: SignatureJudge | None = out.get("signature_judge")
     if judge is None:
         nominal = out["nominal"].system
@@ -847,6 +850,7 @@ def signature_comparison(
                 "model": kind,
                 "effect": effect,
                 "distance": signature_distance(judge.measured, sig),
+                "misses": signature_misses(judge.measured, sig),
                 "features": _features(sig),
             }
         )

@@ -64,6 +64,7 @@ __all__ = [
     "Feature",
     "SignatureJudge",
     "distance",
+    "misses",
     "signatures_of",
 ]
 
@@ -387,3 +388,28 @@ class SignatureJudge:
     def distance(self, system: System) -> float:
         """:func:`distance` of ``system``'s simulated signature from the measured one."""
         return distance(self.measured, self.simulated(system))
+
+
+def misses(
+    measured: Mapping[str, Feature], simulated: Mapping[str, Feature], z_min: float = 3.0
+) -> list[dict[str, float | str]]:
+    """The features a model misses: those both have whose difference exceeds ``z_min``
+    combined standard errors, largest first (``feature``, ``measured``, ``simulated``,
+    ``z`` = (measured − simulated)/√(se_m² + se_s²))."""
+    out: list[dict[str, float | str]] = []
+    for name, m in measured.items():
+        s = simulated.get(name)
+        if s is None:
+            continue
+        se = math.hypot(m.std_error, s.std_error)
+        if se > 0.0 and abs(m.value - s.value) > z_min * se:
+            out.append(
+                {
+                    "feature": name,
+                    "measured": m.value,
+                    "simulated": s.value,
+                    "z": (m.value - s.value) / se,
+                }
+            )
+    out.sort(key=lambda d: -abs(float(d["z"])))
+    return out
