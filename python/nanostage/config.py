@@ -113,11 +113,17 @@ class Table:
 class DahlFriction:
     """Dahl friction on the table side: Coulomb force, rest stiffness, shape exponent.
     ``coulomb_force_n`` in [1e-6, 1e5] N (a micronewton is below any guide's friction),
-    ``stiffness_n_per_m`` in [1e-3, 1e12] N/m."""
+    ``stiffness_n_per_m`` in [1e-3, 1e12] N/m.
+
+    ``asymmetry`` (a, in [-0.9, 0.9]) makes the Coulomb level depend on the direction of
+    sliding: ``Fc·(1 + a·sgn v)``, so steady sliding gives ``Fc·(1 + a)`` in + and
+    ``-Fc·(1 - a)`` in − (docs/effects.md). A plant with ``asymmetry != 0`` runs on the
+    component plant; :func:`nanostage.simulate_plant` (the rigid plant alone) refuses it."""
 
     coulomb_force_n: float
     stiffness_n_per_m: float
     exponent: float = 1.0
+    asymmetry: float = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

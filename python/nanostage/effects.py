@@ -68,7 +68,8 @@ class StaticFrictionMap:
 class LuGre:
     """LuGre: ``ż = v − σ0·|v|·z/g(v)``, ``F = σ0·z + σ1·ż + σ2·v``. ``coulomb_force_n`` in
     [1e-6, 1e5] N and ``stiffness_n_per_m`` in [1e-3, 1e12] N/m, as for
-    :class:`nanostage.DahlFriction`."""
+    :class:`nanostage.DahlFriction`. ``asymmetry`` (a, in [-0.9, 0.9]) scales both levels
+    of ``g(v)`` by ``1 + a·sgn v`` (steady sliding ``Fc·(1 ± a)``)."""
 
     stiffness_n_per_m: float
     damping_n_s_per_m: float
@@ -76,6 +77,7 @@ class LuGre:
     coulomb_force_n: float
     static_force_n: float
     stribeck_velocity_m_per_s: float
+    asymmetry: float = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -83,7 +85,8 @@ class Gms:
     """Generalized Maxwell-slip: parallel elasto-slide elements with Stribeck slip forces
     (``weights`` sum to 1; element ``i`` slips at ``weights[i]·s(v)``). ``coulomb_force_n``
     in [1e-6, 1e5] N and each stiffness in [1e-3, 1e12] N/m, as for
-    :class:`nanostage.DahlFriction`."""
+    :class:`nanostage.DahlFriction`. ``asymmetry`` (a, in [-0.9, 0.9]) scales the slip
+    force ``s(v)`` by ``1 + a·sgn v`` (steady sliding ``Fc·(1 ± a)``)."""
 
     stiffness_n_per_m: tuple[float, ...]
     weights: tuple[float, ...]
@@ -91,6 +94,7 @@ class Gms:
     static_force_n: float
     stribeck_velocity_m_per_s: float
     viscous_n_s_per_m: float = 0.0
+    asymmetry: float = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -32,7 +32,15 @@ from typing import Any, Final, Literal, Union
 import tomli_w
 
 from ._core import ConfigError
-from .config import CascadeController, ForceDrivePlant, FpgaPid, Plant, System, did_you_mean
+from .config import (
+    CascadeController,
+    DahlFriction,
+    ForceDrivePlant,
+    FpgaPid,
+    Plant,
+    System,
+    did_you_mean,
+)
 from .config import field_paths as _numeric_paths
 from .effects import Effects, Gms, LuGre, StaticFrictionMap
 
@@ -78,6 +86,16 @@ IDENTIFIED_KEYS: Final = ("std_error", "lower", "upper")
 #: Dataclasses whose fields at their default are left out of the file (an effect at its
 #: default is switched off).
 _SPARSE: Final = frozenset({Effects})
+
+#: Fields left out of the file at their default (0: a symmetric friction law), so that a
+#: model without them reads and writes the same text as before they existed.
+_SPARSE_FIELDS: Final[Mapping[type, frozenset[str]]] = types.MappingProxyType(
+    {
+        DahlFriction: frozenset({"asymmetry"}),
+        LuGre: frozenset({"asymmetry"}),
+        Gms: frozenset({"asymmetry"}),
+    }
+)
 _TOP: Final = ("schema_version", "provenance", "identified")
 
 
@@ -178,7 +196,8 @@ def _encode(value: Any, hint: Any) -> Any:
             if v is None:
                 continue
             enc = _encode(v, hints[f.name])
-            if cls in _SPARSE and _is_default(f, enc, hints[f.name]):
+            sparse = cls in _SPARSE or f.name in _SPARSE_FIELDS.get(cls, ())
+            if sparse and _is_default(f, enc, hints[f.name]):
                 continue
             out[f.name] = enc
         return out

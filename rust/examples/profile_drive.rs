@@ -34,7 +34,7 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
     lead.drive.motor_modulation.wavenumber_rad_per_m[0] = 2.0 * std::f64::consts::PI / 1e-3;
     lead.drive.motor_modulation.phase_rad[0] = -0.785;
     let fc = match base.drive.table_friction {
-        TableFriction::Dahl(d) => d.coulomb_force_n,
+        TableFriction::Dahl(d) => d.law.coulomb_force_n,
         _ => 1.0,
     };
     let mut cv = general;
@@ -57,6 +57,7 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
         coulomb_force_n: fc,
         static_force_n: 1.3 * fc,
         stribeck_velocity_m_per_s: 5e-4,
+        asymmetry: 0.0,
     });
     let gms = speed_case_gms6();
     let backlash = speed_case_backlash_link();

@@ -8,9 +8,10 @@
 //! solved in closed form, as in the rigid plant: with every effect off the component plant
 //! takes the rigid plant's steps.
 use super::component_params::{Actuator, DriveParams, Modulation, TableFriction};
-use super::friction::{modulation, smoothstep, GMS_ELASTIC_FRACTION};
+use super::friction::{
+    direction_factor, modulation, sliding_direction, smoothstep, GMS_ELASTIC_FRACTION,
+};
 use super::hybrid::{self, HybridPlant, StuckPhase};
-use super::params::DahlFriction;
 use crate::error::{ConfigError, SimError};
 use crate::integrate::{IntegratorOptions, OdeSystem, Rodas4, SegmentEnd, Stats};
 use nalgebra::{Const, DimMin, SMatrix, SVector};
@@ -169,7 +170,7 @@ impl Drive {
         let i_fric = next;
         let n_fric = match &params.table_friction {
             TableFriction::Dahl(d) => {
-                scales.push(d.coulomb_force_n);
+                scales.push(d.law.coulomb_force_n);
                 1
             }
             TableFriction::LuGre(l) => {
@@ -251,8 +252,8 @@ impl Drive {
         }
         let presliding = match &params.table_friction {
             TableFriction::Dahl(d) => {
-                t[i_fric] = d.stiffness_n_per_m;
-                d.stiffness_n_per_m
+                t[i_fric] = d.law.stiffness_n_per_m;
+                d.law.stiffness_n_per_m
             }
             TableFriction::LuGre(l) => {
                 t[i_fric] = 1.0;
@@ -560,11 +561,10 @@ impl Drive {
         match &p.table_friction {
             TableFriction::Dahl(dahl) => {
                 grad[t][zi] -= 1.0;
-                let scaled = DahlFriction {
-                    coulomb_force_n: dahl.coulomb_force_n * st,
-                    ..*dahl
-                };
+                // The level Fc·st·(1 + a·d) is constant in v inside a segment of direction d
+                // (d as in `TableFriction::dynamic`: 1 at rest).
                 let dd = if dt == 0.0 { 1.0 } else { dt };
+                let scaled = dahl.scaled(st, dd);
                 let (_, dz_dv, dz_dz) = scaled.rate(vt, y[zi], dd);
                 set(zi, 2 * t + 1, dz_dv);
                 set(zi, zi, dz_dz);
@@ -580,11 +580,14 @@ impl Drive {
                 let dgg_dv = (l.static_force_n - l.coulomb_force_n)
                     * ex
                     * (-2.0 * q / l.stribeck_velocity_m_per_s);
-                let g = st * gg;
+                // The direction factor is constant in v inside a segment of direction d.
+                let k = direction_factor(l.asymmetry, sliding_direction(vt, dt));
+                let sd = st * k;
+                let g = sd * gg;
                 let s0 = l.stiffness_n_per_m;
                 let dzd_dz = -s0 * vt.abs() / g;
-                let dzd_dv = 1.0 - s0 * z * (vt.signum() * g - vt.abs() * st * dgg_dv) / (g * g);
-                let dzd_ds = s0 * vt.abs() * z * gg / (g * g);
+                let dzd_dv = 1.0 - s0 * z * (vt.signum() * g - vt.abs() * sd * dgg_dv) / (g * g);
+                let dzd_ds = s0 * vt.abs() * z * (gg * k) / (g * g);
                 set(zi, zi, dzd_dz);
                 set(zi, 2 * t + 1, dzd_dv);
                 grad[t][zi] -= s0 + l.damping_n_s_per_m * dzd_dz;
@@ -598,8 +601,10 @@ impl Drive {
                 grad[t][2 * t + 1] -= g.viscous_n_s_per_m;
                 let q = vt / g.stribeck_velocity_m_per_s;
                 let ex = (-q * q).exp();
-                let sv = g.slip_force(vt, st);
-                let dsv_dv = st
+                // The direction factor is constant in v inside a segment of direction d.
+                let sd = st * direction_factor(g.asymmetry, sliding_direction(vt, dt));
+                let sv = g.slip_force(vt, sd);
+                let dsv_dv = sd
                     * (g.static_force_n - g.coulomb_force_n)
                     * ex
                     * (-2.0 * q / g.stribeck_velocity_m_per_s);
@@ -1275,7 +1280,7 @@ impl AnyDrivePlant {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{Amplifier, DwellStatic, Gms, Link, LuGre, StaticMap};
+    use crate::model::{Amplifier, DwellStatic, Gms, Link, LuGre, StaticMap, TableDahl};
     use crate::presets::seed_axis;
 
     fn configs() -> Vec<DriveParams> {
@@ -1309,6 +1314,7 @@ mod tests {
             coulomb_force_n: fc,
             static_force_n: 1.3 * fc,
             stribeck_velocity_m_per_s: 5e-4,
+            asymmetry: 0.3,
         });
         let gms = TableFriction::Gms(Gms {
             n_elements: 3,
@@ -1318,6 +1324,11 @@ mod tests {
             static_force_n: 1.2 * fc,
             stribeck_velocity_m_per_s: 1e-3,
             viscous_n_s_per_m: 10.0,
+            asymmetry: -0.25,
+        });
+        let dahl = TableFriction::Dahl(TableDahl {
+            law: seed_axis().dahl,
+            asymmetry: 0.4,
         });
         let link = Link {
             stiffness_n_per_m: 4.9e7,
@@ -1333,7 +1344,13 @@ mod tests {
         }
         c.motor_modulation = modulation;
         out.push(c);
-        for tf in [TableFriction::Static(map), lugre, gms, base.table_friction] {
+        for tf in [
+            TableFriction::Static(map),
+            lugre,
+            gms,
+            base.table_friction,
+            dahl,
+        ] {
             let mut c = base;
             c.table_friction = tf;
             out.push(c);

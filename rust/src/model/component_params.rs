@@ -59,11 +59,37 @@ pub struct StaticMap {
     pub memory_lag_s: Option<f64>,
 }
 
+/// Dahl friction on the table, with a direction asymmetry of its Coulomb level:
+/// `dF/dt = σ·v·|1 − F·d/Fc_d|^n·sgn(1 − F·d/Fc_d)` with `Fc_d = (1 + a·d)·Fc` and `d` the
+/// direction of sliding (`sgn v`; the slip segment's direction in the plant).
+///
+/// The direction is the sign of the velocity, not of the force or the deflection: the
+/// level only sets where the force saturates in the direction the table moves, so steady
+/// sliding gives exactly `Fc·(1 + a)` in + and `−Fc·(1 − a)` in −. The force is a state and
+/// stays continuous, and the rate `σ·v·(…)` vanishes at v = 0 where `d` switches, so the
+/// rate is continuous in v too. The law stays passive for every `a` in the range: with the
+/// spring energy `V = F²/(2σ)` as storage, the power dissipated is
+/// `F·v − V̇ = |v|·Fc_d·(1 − q)·(1 − |q|^n·sgn q) ≥ 0` (q = 1 − F·d/Fc_d; both factors have
+/// the sign of 1 − q, and `Fc_d ≥ 0.1·Fc > 0`), so over a closed displacement cycle that
+/// returns to the same force the friction absorbs energy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TableDahl {
+    /// The law: Coulomb level Fc, rest stiffness σ, shape exponent n.
+    pub law: DahlFriction,
+    /// Direction asymmetry a of the Coulomb level, in [−0.9, 0.9] (0: the symmetric law,
+    /// bit for bit).
+    pub asymmetry: f64,
+}
+
 /// Maxwell-slip / GMS friction: `N` parallel elasto-slide elements, element `i` with stiffness
-/// `k_i` and slip force `ν_i·s(v)` where `s(v) = Fc + (Fs − Fc)·exp(−(v/vs)²)` and
-/// `Σ ν_i = 1`. Each element's deflection follows the motion exactly (`ż_i = v`) while
-/// `sgn v · k_i z_i ≤ β·ν_i s(v)` (β = 0.9), then yields smoothly and saturates at its slip
-/// force (an elasto-plastic element, Dupont et al. 2002, per Maxwell-slip branch).
+/// `k_i` and slip force `ν_i·s(v)` where `s(v) = (1 + a·d)·[Fc + (Fs − Fc)·exp(−(v/vs)²)]`,
+/// `d` the direction of sliding (as [`TableDahl`]) and `Σ ν_i = 1`. Each element's deflection
+/// follows the motion exactly (`ż_i = v`) while `sgn v · k_i z_i ≤ β·ν_i s(v)` (β = 0.9),
+/// then yields smoothly and saturates at its slip force (an elasto-plastic element, Dupont et
+/// al. 2002, per Maxwell-slip branch). Steady sliding gives `s(v)·d + σ2·v`; each element
+/// stays passive for any positive slip force (storage `k_i·z_i²/2`, dissipation
+/// `k_i·|v|·(z_i·sgn v)·α ≥ 0` where α > 0 only while `z_i·sgn v > 0`), so the asymmetry
+/// keeps the law passive, and the rate `v·(1 − α)` vanishes at v = 0 where `d` switches.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Gms {
     /// Number of elements, in [1, 8].
@@ -82,10 +108,16 @@ pub struct Gms {
     pub stribeck_velocity_m_per_s: f64,
     /// Viscous coefficient σ2, N·s/m, in [0, 1e7].
     pub viscous_n_s_per_m: f64,
+    /// Direction asymmetry a of the levels Fc, Fs, in [−0.9, 0.9] (0: symmetric).
+    pub asymmetry: f64,
 }
 
-/// LuGre friction: `ż = v − σ0·|v|·z/g(v)`, `g(v) = Fc + (Fs − Fc)·exp(−(v/vs)²)`,
-/// `F = σ0·z + σ1·ż + σ2·v`.
+/// LuGre friction: `ż = v − σ0·|v|·z/g(v)`,
+/// `g(v) = (1 + a·d)·[Fc + (Fs − Fc)·exp(−(v/vs)²)]` with `d` the direction of sliding (as
+/// [`TableDahl`]), `F = σ0·z + σ1·ż + σ2·v`. Steady sliding gives `g(v)·d + σ2·v`. The
+/// asymmetry only changes the positive function g, so the bristle map v → σ0·z stays passive
+/// (storage `σ0·z²/2`, `σ0·z·v − V̇ = σ0²·|v|·z²/g ≥ 0`), and g enters ż only through
+/// `|v|/g`, which vanishes at v = 0 where `d` switches.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LuGre {
     /// Bristle stiffness σ0, N/m, in [1e-3, 1e12] (the lower bound as for
@@ -102,6 +134,8 @@ pub struct LuGre {
     pub static_force_n: f64,
     /// Stribeck velocity vs, m/s, in (0, 10].
     pub stribeck_velocity_m_per_s: f64,
+    /// Direction asymmetry a of the levels Fc, Fs, in [−0.9, 0.9] (0: symmetric).
+    pub asymmetry: f64,
 }
 
 /// The friction model acting on the table.
@@ -112,7 +146,7 @@ pub enum TableFriction {
     /// A static map with true stiction (Coulomb + viscous, Stribeck).
     Static(StaticMap),
     /// Dahl (presliding spring with rate-independent hysteresis).
-    Dahl(DahlFriction),
+    Dahl(TableDahl),
     /// LuGre.
     LuGre(LuGre),
     /// Generalized Maxwell-slip.
@@ -301,7 +335,16 @@ impl Gms {
             self.static_force_n,
             self.stribeck_velocity_m_per_s,
         )?;
-        check_range("viscous_n_s_per_m", self.viscous_n_s_per_m, 0.0, 1e7)
+        check_range("viscous_n_s_per_m", self.viscous_n_s_per_m, 0.0, 1e7)?;
+        check_range("asymmetry", self.asymmetry, -0.9, 0.9)
+    }
+}
+
+impl TableDahl {
+    /// Validate the law and the asymmetry against the documented ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.law.validate()?;
+        check_range("asymmetry", self.asymmetry, -0.9, 0.9)
     }
 }
 
@@ -326,7 +369,8 @@ impl LuGre {
             self.coulomb_force_n,
             self.static_force_n,
             self.stribeck_velocity_m_per_s,
-        )
+        )?;
+        check_range("asymmetry", self.asymmetry, -0.9, 0.9)
     }
 }
 
@@ -407,7 +451,10 @@ impl DriveParams {
                 screw: p.screw,
             },
             motor_friction: Some(StaticMap::from_motor_stribeck(p)),
-            table_friction: TableFriction::Dahl(p.dahl),
+            table_friction: TableFriction::Dahl(TableDahl {
+                law: p.dahl,
+                asymmetry: 0.0,
+            }),
             table_mass_kg: p.table.mass_kg,
             external_force_n: p.table.external_force_n,
             n_links: 0,

@@ -28,7 +28,7 @@ mod rigid;
 pub use component::{AnyDrivePlant, Drive, DrivePlant, Inputs, MassMode, MAX_MASSES};
 pub use component_params::{
     Actuator, Amplifier, DriveParams, DwellStatic, Gms, Link, LuGre, Modulation, Side, StaticMap,
-    TableFriction, MAX_GMS_ELEMENTS, MAX_MODULATION_TERMS,
+    TableDahl, TableFriction, MAX_GMS_ELEMENTS, MAX_MODULATION_TERMS,
 };
 pub use friction::GMS_ELASTIC_FRACTION;
 pub use params::{

@@ -151,7 +151,7 @@ pub fn friction_response_polled(
     atol[0] = 1e-9;
     atol[1] = options.atol_position_m * 10.0;
     if let TableFriction::Dahl(d) = friction {
-        atol[2] = options.atol_position_m * d.stiffness_n_per_m;
+        atol[2] = options.atol_position_m * d.law.stiffness_n_per_m;
     }
     let mut y = SVector::<f64, N>::zeros();
     y[0] = time_s[0];

@@ -9,7 +9,7 @@ use super::extract::{PyAnyFriction, PyCascade, PyFxp, PyIntegrator, PyPid, PyPla
 use crate::control::{Cascade, Pid};
 use crate::error::{ConfigError as CoreConfigError, SimError};
 use crate::integrate::IntegratorOptions;
-use crate::model::{AxisParams, DahlFriction, Modulation, TableFriction};
+use crate::model::{AxisParams, Modulation};
 use crate::sim::{
     build_system, modulation, run_drive_open_loop_polled, run_extended_polled,
     run_open_loop_polled, ExtendedConfig, FxpSpec, KnownInputs, PidSpec, Trace,
@@ -362,11 +362,7 @@ fn friction_response<'py>(
         extract_config(integrator, "integrator", "", "an IntegratorOptions")?;
     let tf = match &friction {
         PyAnyFriction::Table(t) => t.to_core().map_err(config_err)?,
-        PyAnyFriction::Dahl(d) => TableFriction::Dahl(DahlFriction {
-            coulomb_force_n: d.coulomb_force_n,
-            stiffness_n_per_m: d.stiffness_n_per_m,
-            exponent: d.exponent,
-        }),
+        PyAnyFriction::Dahl(d) => d.to_table(),
     };
     let mut m = Modulation::default();
     modulation(&terms, &mut m).map_err(config_err)?;
@@ -404,6 +400,15 @@ fn simulate_open_loop<'py>(
     let plant: PyPlant = extract_config(plant, "plant", "", "a Plant")?;
     let integrator: PyIntegrator =
         extract_config(integrator, "integrator", "", "an IntegratorOptions")?;
+    if plant.dahl.asymmetry != 0.0 {
+        // The rigid plant has no direction asymmetry of its Dahl law.
+        return Err(config_err(CoreConfigError::new(
+            "plant.dahl.asymmetry",
+            crate::error::format_value(plant.dahl.asymmetry),
+            "0 for the rigid plant alone (simulate_plant); nanostage.simulate_open_loop of a \
+             System runs the asymmetric law",
+        )));
+    }
     let axis = AxisParams::from(&plant);
     let opts = IntegratorOptions::from(&integrator);
     let u: Vec<f64> = voltage_v.as_array().to_vec();
@@ -526,7 +531,8 @@ fn fxp_requantize<'py>(
 #[pyfunction]
 fn validate_plant(plant: &Bound<'_, PyAny>) -> PyResult<()> {
     let plant: PyPlant = extract_config(plant, "plant", "", "a Plant")?;
-    AxisParams::from(&plant).validate().map_err(config_err)
+    AxisParams::from(&plant).validate().map_err(config_err)?;
+    plant.validate_extra().map_err(config_err)
 }
 
 /// Validate a controller, including the quantisation of gains and range into their formats.

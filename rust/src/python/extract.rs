@@ -6,7 +6,7 @@ use crate::error::ConfigError as CoreConfigError;
 use crate::integrate::IntegratorOptions;
 use crate::model::{
     AxisParams, BallScrew, DahlFriction, DwellStatic, Gearhead, Gms, LuGre, Motor, StaticMap,
-    StribeckFriction, Table, TableFriction, MAX_GMS_ELEMENTS,
+    StribeckFriction, Table, TableDahl, TableFriction, MAX_GMS_ELEMENTS,
 };
 use crate::sim::{
     BacklashSpec, ComplianceSpec, ControllerSpec, EffectsSpec, EncoderErrorsSpec, EncoderSpec,
@@ -95,6 +95,26 @@ pub(crate) struct PyDahl {
     pub(crate) coulomb_force_n: f64,
     pub(crate) stiffness_n_per_m: f64,
     pub(crate) exponent: f64,
+    pub(crate) asymmetry: f64,
+}
+
+impl PyDahl {
+    /// The law without its direction asymmetry (the rigid plant's table friction).
+    pub(crate) fn law(&self) -> DahlFriction {
+        DahlFriction {
+            coulomb_force_n: self.coulomb_force_n,
+            stiffness_n_per_m: self.stiffness_n_per_m,
+            exponent: self.exponent,
+        }
+    }
+
+    /// The law with its direction asymmetry, as the component plant's table friction.
+    pub(crate) fn to_table(&self) -> TableFriction {
+        TableFriction::Dahl(TableDahl {
+            law: self.law(),
+            asymmetry: self.asymmetry,
+        })
+    }
 }
 
 #[derive(FromPyObject)]
@@ -105,6 +125,20 @@ pub(crate) struct PyPlant {
     pub(crate) screw: PyScrew,
     pub(crate) table: PyTable,
     pub(crate) dahl: PyDahl,
+}
+
+impl PyPlant {
+    /// The plant's parameters that [`AxisParams`] does not hold, checked against their
+    /// ranges: the direction asymmetry of the Dahl law, in [−0.9, 0.9]. A system runs a
+    /// plant with an asymmetric Dahl law on the component plant (see [`PySystem::to_spec`]).
+    pub(crate) fn validate_extra(&self) -> Result<(), CoreConfigError> {
+        TableDahl {
+            law: self.dahl.law(),
+            asymmetry: self.dahl.asymmetry,
+        }
+        .validate()
+        .map_err(|e| e.within("dahl"))
+    }
 }
 
 impl From<&PyPlant> for AxisParams {
@@ -138,11 +172,7 @@ impl From<&PyPlant> for AxisParams {
                 mass_kg: p.table.mass_kg,
                 external_force_n: p.table.external_force_n,
             },
-            dahl: DahlFriction {
-                coulomb_force_n: p.dahl.coulomb_force_n,
-                stiffness_n_per_m: p.dahl.stiffness_n_per_m,
-                exponent: p.dahl.exponent,
-            },
+            dahl: p.dahl.law(),
         }
     }
 }
@@ -261,6 +291,7 @@ pub(crate) struct PyLuGre {
     pub(crate) coulomb_force_n: f64,
     pub(crate) static_force_n: f64,
     pub(crate) stribeck_velocity_m_per_s: f64,
+    pub(crate) asymmetry: f64,
 }
 
 #[derive(FromPyObject)]
@@ -271,6 +302,7 @@ pub(crate) struct PyGms {
     pub(crate) static_force_n: f64,
     pub(crate) stribeck_velocity_m_per_s: f64,
     pub(crate) viscous_n_s_per_m: f64,
+    pub(crate) asymmetry: f64,
 }
 
 pub(crate) enum PyTableFriction {
@@ -293,6 +325,7 @@ impl PyTableFriction {
                 coulomb_force_n: l.coulomb_force_n,
                 static_force_n: l.static_force_n,
                 stribeck_velocity_m_per_s: l.stribeck_velocity_m_per_s,
+                asymmetry: l.asymmetry,
             }),
             Self::Gms(g) => {
                 let n = g.stiffness_n_per_m.len();
@@ -318,6 +351,7 @@ impl PyTableFriction {
                     static_force_n: g.static_force_n,
                     stribeck_velocity_m_per_s: g.stribeck_velocity_m_per_s,
                     viscous_n_s_per_m: g.viscous_n_s_per_m,
+                    asymmetry: g.asymmetry,
                 })
             }
         })
@@ -496,8 +530,18 @@ impl From<&PyCascade> for CascadeConfig {
 
 impl PySystem {
     /// The core's description of the system (the table friction checked for its shape).
+    /// A seed plant whose Dahl law has a direction asymmetry (which [`AxisParams`] does not
+    /// hold) and no table friction in the effects gets that law as the effects' table
+    /// friction: the run is then on the component plant, which has the asymmetry.
     pub(crate) fn to_spec(&self) -> Result<SystemSpec, CoreConfigError> {
         let fx = &self.effects;
+        let plant_table = match &self.plant {
+            PyAnyPlant::Seed(p) if p.dahl.asymmetry != 0.0 => {
+                p.validate_extra().map_err(|e| e.within("plant"))?;
+                Some(p.dahl.to_table())
+            }
+            _ => None,
+        };
         Ok(SystemSpec {
             plant: match &self.plant {
                 PyAnyPlant::Seed(p) => PlantSpec::Rigid(p.into()),
@@ -525,7 +569,7 @@ impl PySystem {
             effects: EffectsSpec {
                 table_friction: match &fx.table_friction {
                     Some(tf) => Some(tf.to_core()?),
-                    None => None,
+                    None => plant_table,
                 },
                 motor_friction: FrictionModifiersSpec {
                     asymmetry: fx.motor_friction.asymmetry,

@@ -294,6 +294,7 @@ pub fn speed_case_gms6() -> TableFriction {
         static_force_n: 36.0,
         stribeck_velocity_m_per_s: 1e-3,
         viscous_n_s_per_m: 0.0,
+        asymmetry: 0.0,
     })
 }
 
