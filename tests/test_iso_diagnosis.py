@@ -479,6 +479,80 @@ def test_the_truths_in_loop_effects_move_the_stop_the_encoder_sees() -> None:
     )
 
 
+def test_the_truths_hunting_backlash_swings_by_its_width_and_the_encoder_sees_it() -> None:
+    case = iso_truth.draw_case("backlash", 1)
+    p = case.parameters
+    assert p["hunting"] == 1.0 and 14e-6 <= p["width_m"] <= 30e-6
+    x = np.array([r["target_m"] for r in case.rows])
+    dev = np.array([r["actual_m"] for r in case.rows]) - x
+    d = np.array([1.0 if r["direction"] == "+" else -1.0 for r in case.rows])
+    # About the swing's centre (past the target in the approach's direction), the table is
+    # at most half a swing away, beside the loop's nominal stop (within a count) and noise.
+    about = dev - d * p["centre_fraction"] * p["width_m"]
+    swing = p["swing_fraction"] * p["width_m"]
+    loop = 1.0 * iso_truth.COUNT_M + 5 * p["reading_noise_m"]
+    assert np.max(np.abs(about)) <= swing + loop
+    # The stuck part of the cycle: that share of the readings at an end of the swing
+    # (binomial, 110 readings: within 4 standard deviations).
+    at_end = np.mean(np.abs(np.abs(about) - swing) <= loop)
+    n = len(case.rows)
+    sd = math.sqrt(p["stuck_fraction"] * (1 - p["stuck_fraction"]) / n)
+    assert abs(at_end - p["stuck_fraction"]) < 4 * sd + 0.02
+    # The encoder on the table sees the swing.
+    enc = np.array([r["encoder_m"] for r in case.rows])
+    assert np.max(np.abs(enc - x - dev)) < 0.5 * iso_truth.COUNT_M + 5 * p["reading_noise_m"]
+    # Half the backlash cases hunt (the truth's own draw), the others coast.
+    hunting = [iso_truth.draw_case("backlash", k).parameters["hunting"] for k in range(1, 41)]
+    assert 10 <= sum(hunting) <= 30
+
+
+def test_the_scan_keeps_a_hunting_sizes_change_per_direction_and_the_rest_as_scatter() -> None:
+    effect = np.array([1.0, 5.0, -3.0, -7.0, 2.0, 0.0])
+    up = np.array([True, True, False, False, True, False])
+    group = np.array([0, 0, 1, 1, 0, 1])
+    mean, rest = idg._direction_split(effect, up)
+    assert mean.tolist() == [8 / 3, 8 / 3, -10 / 3, -10 / 3, 8 / 3, -10 / 3]
+    assert rest == pytest.approx(float(np.mean((effect - mean) ** 2)))
+    # Here the groups are the directions: the rms within them is the rest's.
+    assert idg._within_rms(effect, group) == pytest.approx(math.sqrt(rest))
+
+
+def _few_readings(case: iso_truth.TruthCase, targets: int, runs: int) -> iso_truth.TruthCase:
+    keep = sorted({r["target_m"] for r in case.rows})[:targets]
+    rows = [r for r in case.rows if r["target_m"] in keep and r["run"] <= runs]
+    return iso_truth.TruthCase(case.effect, case.parameters, rows)
+
+
+HUNT = IsoDiagnosisSettings(
+    n_trials=8, seed=3, backlash_widths_m=(12e-6, 14e-6, 20e-6), friction_spreads=(0.5,)
+)
+
+
+@pytest.mark.parametrize("seed", [1, 15])
+def test_a_backlash_that_makes_the_loop_hunt_is_named_backlash(tmp_path: Path, seed: int) -> None:
+    # The truth's hunting backlash (its own stick-slip swing), on 4 targets × 3 runs.
+    case = _few_readings(iso_truth.draw_case("backlash", seed), 4, 3)
+    assert case.parameters["hunting"] == 1.0
+    system = presets.preset_system("seed")
+    path = iso_truth.write_case(case, tmp_path / "e.csv", encoder=True)
+    rep = diagnose_iso(read_iso_measurement(path), system, HUNT)
+    assert rep["verdict"] == "backlash", [(c["name"], c["significant"]) for c in rep["candidates"]]
+    top = rep["candidates"][0]
+    # The model hunts from 14 µm on: those sizes keep their change per direction only.
+    assert top["scan"]["hunting"] == [False, True, True]
+    assert top["parameters"]["width_m"] > 12e-6
+    assert rep["indistinguishable"] == []
+    # Without the encoder, a scatter of the interferometer's readings can stand for the
+    # swing: the report names what is tied with the experiment that separates them.
+    alone = iso_truth.write_case(case, tmp_path / "i.csv")
+    rep = diagnose_iso(read_iso_measurement(alone), system, HUNT)
+    names = [rep["verdict"], *(t["candidate"] for t in rep["indistinguishable"])]
+    assert "backlash" in names
+    for t in rep["indistinguishable"]:
+        if {rep["verdict"], t["candidate"]} == {"backlash", "interferometer_noise"}:
+            assert "encoder" in t["separating_test"]
+
+
 def test_the_encoders_readings_separate_a_stop_scatter_from_the_interferometers_noise(
     tmp_path: Path,
 ) -> None:

@@ -45,8 +45,11 @@ the loop stops: each is fitted by campaigns of the model with the effect added, 
 its size with the model's seed (common random numbers), interpolated between the sizes and
 refined between the best size's neighbours, on the encoder's deviations when the file has
 them (a chain effect is not in them), else on the interferometer's; then judged by the
-same significance and ranking. A backlash wide enough for the loop to hunt
-and the controller's gains are not covered (:data:`NOT_COVERED`). The encoder's
+same significance and ranking. A size at which the loop stops more than a count apart on
+the runs of one approach makes the loop hunt: there only the change per direction is
+kept and the rest counts as scatter (a hunting table's place at the reading is a phase of
+its limit cycle no other test repeats). The controller's gains are not covered
+(:data:`NOT_COVERED`). The encoder's
 interpolation error acts in the loop but its effect on where the table stops is, to first
 order, ``−A·sin(2π x/λ + φ)`` at the target (docs/effects.md): it is fitted that way.
 """
@@ -121,9 +124,11 @@ ISO_QUANTITIES: Final[tuple[str, ...]] = tuple(
 
 #: What the diagnosis does not fit, and why.
 NOT_COVERED: Final[dict[str, str]] = {
-    "backlash_hunting": "a backlash wider than the scan, where the loop hunts through the "
-    "dead band (errors of the order of the width, in no fixed pattern): use nanostage "
-    "diagnose on traces",
+    "backlash_hunting_pattern": "where a hunting loop (a backlash of 14 µm and more on the "
+    "seed axis) is at each reading: a phase of its limit cycle no other test repeats, so "
+    "only its offset per direction and its scatter are fitted, and its width only up to "
+    "the scan's widest (the loop's swing hardly grows beyond): use nanostage diagnose on "
+    "traces for the cycle itself",
     "controller_gains": "in the loop: use nanostage diagnose or nanostage tune",
 }
 
@@ -159,6 +164,9 @@ SEPARATING_TESTS: Final[dict[frozenset[str], str]] = {
     frozenset({"friction_scatter", "interferometer_noise"}): "the encoder's readings logged "
     "beside the interferometer's, or two readings at each stop (a scatter of the stops is in "
     "the encoder's readings and the same at both readings; the interferometer's noise is not)",
+    frozenset({"backlash", "interferometer_noise"}): "the encoder's readings logged beside "
+    "the interferometer's (a hunting loop's stops are in the encoder's readings; the "
+    "interferometer's noise is not)",
     frozenset({"friction_scatter", "abbe"}): "a second measuring point (an angular "
     "repeatability scales with the Abbe offset, a scatter of the stops does not)",
     frozenset({"friction_scatter", "settling_residual"}): "a repeat with a longer dwell (a "
@@ -232,7 +240,7 @@ class IsoDiagnosisSettings:
     abbe_offset_m: float = 0.02
     loop_tolerance_m: float | None = None
     in_loop_trials: int = 2
-    backlash_widths_m: tuple[float, ...] = (6e-6, 8e-6, 10e-6, 12e-6)
+    backlash_widths_m: tuple[float, ...] = (6e-6, 8e-6, 10e-6, 12e-6, 14e-6, 20e-6)
     friction_spreads: tuple[float, ...] = (0.1, 0.2, 0.35, 0.5)
 
     def __post_init__(self) -> None:
@@ -913,6 +921,7 @@ class _Scan:
     extra_var_m2: FloatArray  # (sizes,), on the fitted reading
     failed_trials: list[int]
     seconds: float
+    hunting: list[bool] = field(default_factory=list)  # per size (zero excluded)
 
     def _weights(self, size: float) -> tuple[int, float]:
         k = int(np.searchsorted(self.sizes, size, side="right")) - 1
@@ -953,11 +962,17 @@ def _scan(
     t0 = time.perf_counter()
     k = s.in_loop_trials
     target = cycle.target_m
+    # The readings of one target and direction (the runs of one approach).
+    _, group = np.unique(np.column_stack([target, cycle.direction]), axis=0, return_inverse=True)
+    group = group.ravel()
+    up = cycle.direction > 0
+    count = float(system.encoder.count_m)
     base_dev = (base.encoder_m if encoder else base.position_m)[:k] - target[None, :]
     base_pos = base.position_m[:k] - target[None, :]
     base_ok = base.ok[:k]
     zero = np.zeros(target.shape[0])
     sizes, effects, positions, extra, failed = [0.0], [zero], [zero], [0.0], []
+    hunting: list[bool] = []
     for size in cand.grid(s):
         camp = run_campaign(
             cand.with_effect(system, float(size)),
@@ -975,9 +990,21 @@ def _scan(
         dev = (camp.encoder_m if encoder else camp.position_m)[ok] - target[None, :]
         bdev = base_dev[ok]
         pos = camp.position_m[ok] - target[None, :] - base_pos[ok]
-        effects.append(zero if cand.random else np.mean(dev - bdev, axis=0))
-        positions.append(zero if cand.random else np.mean(pos, axis=0))
+        eff = zero if cand.random else np.mean(dev - bdev, axis=0)
+        peff = zero if cand.random else np.mean(pos, axis=0)
         v = float(np.mean(np.var(dev, axis=0, ddof=1)) - np.mean(np.var(bdev, axis=0, ddof=1)))
+        # A loop that stops more than a count apart on the runs of one approach has not
+        # settled: it hunts, and where a hunting table is at the reading is a phase of its
+        # limit cycle that no other test repeats. Its mean change per direction is kept;
+        # the rest is scatter.
+        hunt = _within_rms(eff, group) > count
+        if hunt:
+            eff, spread = _direction_split(eff, up)
+            peff, _ = _direction_split(peff, up)
+            v += spread
+        hunting.append(bool(hunt))
+        effects.append(eff)
+        positions.append(peff)
         extra.append(max(v, 0.0))
         sizes.append(float(size))
     if len(sizes) < 2:  # not one size completed: the model itself, twice
@@ -992,7 +1019,23 @@ def _scan(
         extra_var_m2=np.asarray(extra),
         failed_trials=failed,
         seconds=time.perf_counter() - t0,
+        hunting=hunting,
     )
+
+
+def _within_rms(effect_m: FloatArray, group: IntArray) -> float:
+    """Rms of the effect about its mean over each group's readings."""
+    means = np.bincount(group, weights=effect_m) / np.bincount(group)
+    return float(np.sqrt(np.mean((effect_m - means[group]) ** 2)))
+
+
+def _direction_split(effect_m: FloatArray, up: npt.NDArray[np.bool_]) -> tuple[FloatArray, float]:
+    """The effect's mean per direction at each reading, and the mean square of the rest."""
+    out = np.empty_like(effect_m)
+    for m in (up, ~up):
+        if np.any(m):
+            out[m] = float(np.mean(effect_m[m]))
+    return out, float(np.mean((effect_m - out) ** 2))
 
 
 def _fit_in_loop(
@@ -1485,6 +1528,7 @@ def diagnose_iso(
             "sizes": sc.sizes[1:],
             "trials": s.in_loop_trials,
             "failed_trials": sc.failed_trials,
+            "hunting": sc.hunting,
         }
         results.append(
             judge(

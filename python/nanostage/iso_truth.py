@@ -33,6 +33,9 @@ none) added to the interferometer's reading at the functional point:
   pulling it back means reversing the motor across the whole dead band, which the loop's
   integral does not finish within the dwell. The table stays past the target in the
   approach's direction by that coast (the encoder sees it);
+  A backlash wider than about 14 µm (half the cases) makes the loop hunt: the table
+  sticks at one end of a swing of the order of the width while the motor crosses the dead
+  band, then slips to the other end; each reading catches the cycle at a random phase;
 * ``friction_scatter`` (in the loop): the friction varies from approach to approach, so the
   loop stops anywhere within its dead zone of about ±1 count (uniform), plus a stick-slip
   scatter of the last micro-slips (Gaussian); the encoder sees it.
@@ -81,6 +84,8 @@ PAUSE_S: Final[float] = 60.0
 COUNT_M: Final[float] = 1e-7
 #: The encoder's signal period [m].
 SIGNAL_PERIOD_M: Final[float] = 20e-6
+#: The share of the backlash cases wide enough for the loop to hunt.
+HUNTING_FRACTION: Final[float] = 0.5
 
 
 class TruthCase:
@@ -213,11 +218,13 @@ def _hidden(
             -amp * np.sin(2 * math.pi * x / SIGNAL_PERIOD_M + phase),
         )
     if effect == "backlash":
+        if rng.uniform() < HUNTING_FRACTION:
+            return _hunting_backlash(rng, d)
         width = float(rng.uniform(10e-6, 13e-6))
         coast = float(rng.uniform(0.012, 0.0135))  # of the width, at the stop
         jitter = float(rng.uniform(0.05, 0.15)) * COUNT_M
         return (
-            {"width_m": width, "coast_fraction": coast, "jitter_m": jitter},
+            {"width_m": width, "coast_fraction": coast, "jitter_m": jitter, "hunting": 0.0},
             d * coast * width + jitter * rng.uniform(-1.0, 1.0, n),
         )
     if effect == "friction_scatter":
@@ -228,6 +235,34 @@ def _hidden(
             COUNT_M * dead * rng.uniform(-1.0, 1.0, n) + slip * np.asarray(rng.standard_normal(n)),
         )
     raise ValueError(f"effect = {effect!r} is invalid: expected one of {', '.join(EFFECTS)}")
+
+
+def _hunting_backlash(
+    rng: np.random.Generator, d: np.ndarray
+) -> tuple[dict[str, float], np.ndarray]:
+    """A backlash wide enough for the loop to hunt: the table sticks at one end of a swing
+    while the motor crosses the dead band (the integral winds up), then slips across to the
+    other end, and so on; the swing's centre lies past the target in the approach's
+    direction. The cycle's period has nothing to do with the dwell, so each reading catches
+    it at a random phase: at one end (the stuck part of the cycle), else anywhere between."""
+    n = d.shape[0]
+    width = float(rng.uniform(14e-6, 30e-6))
+    swing = float(rng.uniform(0.5, 1.0))  # half the swing, of the width
+    centre = float(rng.uniform(0.0, 0.4))  # the swing's centre past the target, of the width
+    stuck = float(rng.uniform(0.6, 0.9))  # fraction of the cycle at an end
+    at_end = rng.uniform(size=n) < stuck
+    side = rng.choice([-1.0, 1.0], size=n)
+    phase = np.where(at_end, side, rng.uniform(-1.0, 1.0, n))
+    return (
+        {
+            "width_m": width,
+            "swing_fraction": swing,
+            "centre_fraction": centre,
+            "stuck_fraction": stuck,
+            "hunting": 1.0,
+        },
+        d * centre * width + swing * width * phase,
+    )
 
 
 def draw_case(effect: str, seed: int) -> TruthCase:
