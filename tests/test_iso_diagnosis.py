@@ -186,6 +186,71 @@ def test_a_hidden_thermal_drift_from_the_independent_truth_is_named(tmp_path: Pa
     assert "thermal_drift" in names
 
 
+def _result(name: str, gain: float, dof: int, gap: float = 1.0) -> dict[str, Any]:
+    return {
+        "name": name,
+        "significant": True,
+        "likelihood_gain": gain,
+        "noise_floor_gain": 16.0,
+        "iso_gap": gap,
+        "dof": dof,
+    }
+
+
+def test_a_change_from_run_to_run_within_the_loops_tolerance_still_separates_two_fits() -> None:
+    # 3 targets × 2 directions × 4 runs; two fits 30 nm apart (below half a count of 100 nm).
+    group = np.repeat(np.arange(6), 4)
+    runs = np.tile(np.arange(4) - 1.5, 6)
+    results = [_result("refractive_index_drift", 1000.0, 2), _result("thermal_drift", 1100.0, 3)]
+    # Apart from run to run at each target and direction (a drift's course): the better
+    # likelihood wins although the other has fewer parameters.
+    course = {"refractive_index_drift": (np.zeros(24), 0.0), "thermal_drift": (27e-9 * runs, 0.0)}
+    assert idg._select(results, course, 0.1, 50e-9, group, 10e-9) == ("thermal_drift", [])
+    # Without the groups (the old criterion), 30 nm is within the loop's tolerance: a tie,
+    # and the one with fewer parameters is the verdict.
+    assert idg._select(results, course, 0.1, 50e-9) == (
+        "refractive_index_drift",
+        ["thermal_drift"],
+    )
+    # Apart by a pattern over the targets and directions, the same in every run: that is
+    # what the loop's stop may do within its tolerance, still a tie.
+    pattern = {
+        "refractive_index_drift": (np.zeros(24), 0.0),
+        "thermal_drift": (30e-9 * np.where(group % 2 == 0, 1.0, -1.0), 0.0),
+    }
+    assert idg._select(results, pattern, 0.1, 50e-9, group, 10e-9) == (
+        "refractive_index_drift",
+        ["thermal_drift"],
+    )
+    # Apart from run to run but with likelihood gains within the noise floor: a tie.
+    close = [_result("refractive_index_drift", 1000.0, 2), _result("thermal_drift", 1010.0, 3)]
+    assert idg._select(close, course, 0.1, 50e-9, group, 10e-9) == (
+        "refractive_index_drift",
+        ["thermal_drift"],
+    )
+
+
+def test_a_slow_thermal_drift_is_told_from_an_index_drift_by_its_course_in_time(
+    tmp_path: Path,
+) -> None:
+    # τ = 1450 s over a 413 s test: nearly linear, it levels off by 40 nm rms beside the
+    # best constant-rate drift, within the loop's tolerance but the same at no two runs.
+    case = iso_truth.draw_case("thermal_drift", 6)
+    assert case.parameters["tau_s"] > 3 * case.rows[-1]["time_s"]
+    path = iso_truth.write_case(case, tmp_path / "t.csv")
+    rep = diagnose_iso(read_iso_measurement(path), presets.preset_system("seed"), in_loop=())
+    assert rep["verdict"] == "thermal_drift"
+    assert "refractive_index_drift" not in [t["candidate"] for t in rep["indistinguishable"]]
+    # A constant-rate index drift: the thermal drift's extra time constant explains nothing
+    # more, they stay tied and the simpler is the verdict.
+    index = iso_truth.write_case(
+        iso_truth.draw_case("refractive_index_drift", 3), tmp_path / "i.csv"
+    )
+    rep = diagnose_iso(read_iso_measurement(index), presets.preset_system("seed"), in_loop=())
+    assert rep["verdict"] == "refractive_index_drift"
+    assert "thermal_drift" in [t["candidate"] for t in rep["indistinguishable"]]
+
+
 def test_the_same_seed_gives_the_same_report(tmp_path: Path) -> None:
     path = iso_truth.write_case(iso_truth.draw_case("abbe", 11), tmp_path / "a.csv")
     meas = read_iso_measurement(path)

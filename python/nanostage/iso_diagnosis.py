@@ -1166,12 +1166,18 @@ def _select(
     shapes: dict[str, tuple[FloatArray, float]],
     gap_noise: float,
     resolution_m: float,
+    group: IntArray | None = None,
+    within_resolution_m: float = math.inf,
 ) -> tuple[str, list[str]]:
     """The verdict and the candidates indistinguishable from it.
 
-    Two candidates are *distinguishable* when their fitted effects differ by at least
-    ``resolution_m`` (rms over the readings, with the extra scatter) and their likelihood
-    gains differ by more than the larger of their noise floors. The contenders are the
+    Two candidates are *distinguishable* when their likelihood gains differ by more than
+    the larger of their noise floors and their fitted effects differ: by at least
+    ``resolution_m`` (rms over the readings, with the extra scatter), or, with ``group``
+    (the readings' target and direction), by at least ``within_resolution_m`` in how they
+    change from run to run at one target and direction (rms about each group's mean: the
+    loop's tolerance is a stop per target and direction, the same in every run, so it
+    cannot stand for such a change; a drift's course in time is one). The contenders are the
     significant candidates within the gap's noise band of the best ISO gap, those not
     distinguishable from the best, and those with a higher likelihood gain; a contender
     that another contender is distinguishable from and beats on likelihood drops out; of
@@ -1186,8 +1192,10 @@ def _select(
         pa, sa = shapes[a["name"]]
         pb, sb = shapes[b["name"]]
         d = math.sqrt(float(np.mean((pa - pb) ** 2)) + (sa - sb) ** 2)
+        within = 0.0 if group is None else _within_rms(pa - pb, group)
         margin = max(a["noise_floor_gain"], b["noise_floor_gain"])
-        return d >= resolution_m and abs(a["likelihood_gain"] - b["likelihood_gain"]) > margin
+        apart = d >= resolution_m or within >= within_resolution_m
+        return apart and abs(a["likelihood_gain"] - b["likelihood_gain"]) > margin
 
     best = min(sig, key=lambda r: r["iso_gap"])
     band = max(gap_noise, 0.1 * best["iso_gap"])
@@ -1544,7 +1552,11 @@ def diagnose_iso(
         )
         bar.update(3 + len(candidates) + i)
     bar.update(n_steps, final=True)
-    verdict, tied = _select(results, shapes, gap_noise, 0.5 * loop_tol)
+    # A change from run to run at one target and direction larger than the
+    # interferometer's nominal noise is neither the loop's stop nor the reading's noise.
+    verdict, tied = _select(
+        results, shapes, gap_noise, 0.5 * loop_tol, group, max(s.reading_noise_m, _SD_FLOOR_M)
+    )
     by_name = {r["name"]: r for r in results}
     trailing = sorted(
         (r for r in results if r["name"] != verdict and r["name"] not in tied),
