@@ -1,7 +1,8 @@
 //! Every friction law of the plants, as formulas with their partial derivatives: the rigid
 //! plant's motor-side Stribeck torque and Dahl presliding force, and the component plant's
-//! static maps (Stribeck, asymmetry, dwell-dependent breakaway), LuGre, GMS and the position
-//! modulation of friction levels. The direction `d` (±1) of the current slip segment replaces
+//! static maps (Stribeck, asymmetry, dwell-dependent breakaway), the table's Dahl, LuGre and
+//! GMS laws (each with a direction asymmetry of its levels) and the position modulation of
+//! friction levels. The direction `d` (±1) of the current slip segment replaces
 //! `sgn v`, so each law is smooth inside a segment; the stick/slip logic of the plants
 //! (`rigid.rs`, `component.rs`) handles v = 0.
 use super::component_params::{Gms, LuGre, Modulation, StaticMap, TableDahl, TableFriction};
@@ -290,7 +291,8 @@ impl TableFriction {
     /// Force of the dynamic part (Dahl, LuGre, GMS; 0 for static maps and none) at states
     /// `z`, velocity `v`, slip direction `d` (0: at rest or unknown) and level scale `s`;
     /// writes the state rates to `dfric` when given. The direction asymmetry of each law
-    /// scales its levels by `1 + a·d` with `d` from [`sliding_direction`].
+    /// scales its levels by `1 + a·d`: Dahl with the `d` it uses for `sgn v` (1 where `d` is
+    /// 0, at rest), LuGre and GMS with `d`, or `sgn v` where `d` is 0.
     pub fn dynamic(&self, z: &[f64], v: f64, d: f64, s: f64, dfric: Option<&mut [f64]>) -> f64 {
         match self {
             Self::Dahl(p) => {
