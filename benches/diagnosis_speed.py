@@ -59,7 +59,12 @@ def main() -> None:
         wall = time.perf_counter() - t0
         walls.append(wall)
         found = ", ".join(rep["selected"]) or "none"
-        print(f"hidden {h:24s} selected {found:40s} {wall:6.1f} s", flush=True)
+        sims = rep["simulations"]
+        print(
+            f"hidden {h:24s} selected {found:40s} {wall:6.1f} s  "
+            f"({sims['simulated']} simulations, {sims['reused']} looked up)",
+            flush=True,
+        )
     print(
         f"median {statistics.median(walls):.1f} s, slowest {max(walls):.1f} s "
         f"over {len(walls)} diagnoses (goal: median ≤ 30 s, slowest ≤ 60 s)"

@@ -8,7 +8,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,17 +112,19 @@ class _Ctx:
 
         return build
 
-    def best_start_setting(self, base: System, cand: Candidate) -> tuple[int, ...]:
+    def best_start_setting(
+        self, base: System, cand: Candidate, warm_only: bool = False
+    ) -> tuple[int, ...]:
         """The setting of a discrete candidate whose model at the start of its fits (each
-        fold's warm free values, and the manifest's values) has the smallest training gap,
-        summed over folds, as a one-element tuple; all its settings when every start fails
-        to simulate (their fits then report why). All the settings' starts of a fold are
-        simulated as one batch."""
+        fold's warm free values, and the manifest's values unless ``warm_only``) has the
+        smallest training gap, summed over folds, as a one-element tuple; all its settings
+        when every start fails to simulate (their fits then report why). All the settings'
+        starts of a fold are simulated as one batch."""
         cost = np.zeros(len(cand.discrete))
         prior = {n: p.initial for n, p in self.free}
         for i, (train, _) in enumerate(self.folds):
             warm = self.warm[i] if i < len(self.warm) else prior
-            starts = [warm] if warm == prior else [warm, prior]
+            starts = [warm] if warm == prior or warm_only else [warm, prior]
             systems = [
                 self.builder(base, _at_setting(cand, k))([st[n] for n, _ in self.free])
                 for k in cand.discrete
@@ -138,6 +140,50 @@ class _Ctx:
             return cand.discrete
         return (cand.discrete[int(np.argmin(cost))],)
 
+    def _fit_held(
+        self,
+        base: System,
+        params: Sequence[tuple[str, Param]],
+        apply_extra: Callable[[System, Sequence[float]], System],
+        warm: Mapping[str, float],
+        train: Sequence[Experiment],
+        seed: int,
+        scan_points: int | None,
+        screen_starts: int,
+        scan_starts: int,
+    ) -> tuple[Fit, FitProblem]:
+        """A screening fit of ``params`` alone, the free nominal parameters held at their
+        ``warm`` values: the same scan and starts over ``params`` as a screening fit with
+        the free parameters too (whose scan draws ``params`` only, at the same points), but
+        each finite-difference Jacobian costs ``len(params) + 1`` evaluations instead of
+        ``len(free) + len(params) + 1``. The fit's values list the held parameters first
+        (as a fit of all of them would, without standard errors: they were not fitted);
+        its covariance is zero in their rows and columns."""
+        held = {n: warm.get(n, p.initial) for n, p in self.free}
+        full = self.builder(base, apply_extra)
+        fixed = list(held.values())
+
+        def build(values: Sequence[float]) -> System:
+            return full([*fixed, *values])
+
+        prob = self.problem(list(params), build, train)
+        k = len(params)
+        f = prob.fit(
+            screen_starts,
+            self.st,
+            seed,
+            scan=(scan_points or min(self.st.scan_points * k, self.st.scan_points_max))
+            if params
+            else 0,
+            scan_starts=scan_starts,
+        )
+        nf = len(held)
+        cov = np.zeros((0, 0))
+        if f.unit_covariance.shape == (k, k):
+            cov = np.zeros((nf + k, nf + k))
+            cov[nf:, nf:] = f.unit_covariance
+        return dataclasses.replace(f, values=held | f.values, unit_covariance=cov), prob
+
     def fit_and_validate(
         self,
         base: System,
@@ -149,45 +195,62 @@ class _Ctx:
         scan_points: int | None = None,
         screen_starts: int = 1,
         scan_starts: int = 1,
+        hold: bool = False,
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
         command residual of each validation experiment (None without a measured command, or
         where the command is part of the gap),
         and each validation move's share of its experiment's mean square (:func:`move_units`;
-        they sum to the experiment's)."""
+        they sum to the experiment's). With ``hold`` (screening, after the calibration) the
+        free nominal parameters stay at each fold's warm values and only ``params`` are
+        fitted (:attr:`DiagnosisSettings.screen_holds_nominal`)."""
         fits, ms, residuals = [], [], []
         units: list[float] = []
         command: list[float | None] = []
         for i, (train, validate) in enumerate(self.folds):
             warm = self.warm[i] if i < len(self.warm) else {}
-            free = [
-                (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
-                for n, p in self.free
-            ]
-            prob = self.problem(free + list(params), self.builder(base, apply_extra), train)
-            # Two starts at least: the warm values, and the manifest's (prior) values.
-            prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
-            # Screening uses the warm start only, except for candidates without continuous
-            # parameters (delays), whose changes can move the free parameters far: they
-            # also get the prior start.
-            both = warm and (not screen or not params)
-            f = prob.fit(
-                (max(n_starts, 2) if both else screen_starts) if screen or warm else n_starts,
-                self.st,
-                seed,
-                n_warm=len(free) if warm else 0,
-                prior=prior if both else None,
-                # The first calibration of the model (no warm values) scans all its free
-                # parameters: it is cheap, and a poor local optimum there would make any
-                # candidate's refit look like an effect.
-                scan=(
-                    scan_points or min(self.st.scan_points * len(params), self.st.scan_points_max)
+            if hold and warm:
+                f, prob = self._fit_held(
+                    base,
+                    params,
+                    apply_extra,
+                    warm,
+                    train,
+                    seed,
+                    scan_points,
+                    screen_starts,
+                    scan_starts,
                 )
-                if params
-                else (0 if warm else self.st.scan_points_nominal),
-                scan_starts=scan_starts,
-            )
+            else:
+                free = [
+                    (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
+                    for n, p in self.free
+                ]
+                prob = self.problem(free + list(params), self.builder(base, apply_extra), train)
+                # Two starts at least: the warm values, and the manifest's (prior) values.
+                prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
+                # Screening uses the warm start only, except for candidates without
+                # continuous parameters (delays), whose changes can move the free parameters
+                # far: they also get the prior start.
+                both = warm and (not screen or not params)
+                f = prob.fit(
+                    (max(n_starts, 2) if both else screen_starts) if screen or warm else n_starts,
+                    self.st,
+                    seed,
+                    n_warm=len(free) if warm else 0,
+                    prior=prior if both else None,
+                    # The first calibration of the model (no warm values) scans all its free
+                    # parameters: it is cheap, and a poor local optimum there would make any
+                    # candidate's refit look like an effect.
+                    scan=(
+                        scan_points
+                        or min(self.st.scan_points * len(params), self.st.scan_points_max)
+                    )
+                    if params
+                    else (0 if warm else self.st.scan_points_nominal),
+                    scan_starts=scan_starts,
+                )
             res, val_command = prob.residuals_and_commands(f.system, validate)
             fits.append(f)
             residuals.append(res)
@@ -209,6 +272,7 @@ def diagnose_experiments(
     candidates: Sequence[str] | None = None,
     settings: DiagnosisSettings | None = None,
     progress: bool = True,
+    executor: Executor | Any | None = None,
 ) -> dict[str, Any]:
     """Run the diagnosis over train/validate folds. Returns a dict with ``nominal`` (Fit of
     the first fold), ``nominal_validation_ms``, ``floor_rms_m``, ``rounds`` (lists of
@@ -217,9 +281,21 @@ def diagnose_experiments(
     which refitting the model before from a candidate's free values improved it),
     ``timing_s``, ``simulations`` (``simulated``: simulations run, None without the
     cache; ``reused``: looked up in the :class:`SimulationCache`) and ``cache`` (that
-    cache, or None: the report's simulations of the same fits look it up)."""
+    cache, or None: the report's simulations of the same fits look it up).
+
+    ``executor`` (a :class:`concurrent.futures.Executor` or a ``dask.distributed.Client``;
+    anything with ``submit``): the candidates' fits of each round (screening and
+    refinement) run on it as tasks instead of on ``parallel_candidates`` local threads
+    (:func:`_concurrently`; needs ``cloudpickle``). The results are the same whatever
+    runs them; ``simulations`` then counts this process's simulations only (each task
+    has its own cache)."""
     st = settings or DiagnosisSettings()
     t_start = time.perf_counter()
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError(
+            f"executor must have a submit method (concurrent.futures.Executor or a "
+            f"dask.distributed.Client), not {type(executor).__name__}"
+        )
     if not st.simulation_cache_mb >= 0.0:
         raise ValueError(
             f"DiagnosisSettings.simulation_cache_mb = {st.simulation_cache_mb!r}: must be ≥ 0 "
@@ -303,7 +379,7 @@ def diagnose_experiments(
 
         now = (current, current_ms, current_cmd, current_units)
         for i, cand, r, exc, seconds in _concurrently(
-            list(enumerate(cand_now)), now, ctx, screen=True
+            list(enumerate(cand_now)), now, ctx, screen=True, executor=executor
         ):
             if r is None:
                 # An invalid combination with the effects already selected, or a
@@ -325,25 +401,24 @@ def diagnose_experiments(
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
 
         top = [by_name[name] for name in refine_names(results, st)]
-        where = {r.effect: j for j, r in enumerate(results)}
-        for _, cand, refined, exc, seconds in _concurrently(top, now, ctx, screen=False):
-            if refined is None:
-                skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
-                continue
-            results[where[cand.name]] = refined
-            print_progress(
-                f"  round {rnd + 1} refit {cand.name:26s} validation "
-                f"{refined.validation_rms_m * 1e9:9.1f} nm  shrink {refined.shrink:+.1%}"
-                f"{'  significant' if refined.significant else ''}"
-                f"  ({seconds:.1f} s)",
-                progress,
-            )
+        # With the nominal held in screening, the results not refitted here hold the
+        # model before's free values (:attr:`DiagnosisSettings.screen_holds_nominal`).
+        held = {r.effect for r in results} if st.screen_holds_nominal else set()
+        _refine(top, now, ctx, results, held, skipped, rnd, progress, executor)
         results.sort(key=lambda r: r.validation_rms_m)
         # Refitting alone: a candidate's fit moves the free nominal parameters too, and
         # may have found a better optimum of the model *without* the effect. Refit the
         # model before from each significant candidate's free values; a better
         # training fit becomes the baseline, and every candidate is judged again.
-        better = _refit_control(ctx, current, results, current_fits, current_ms, rnd, progress)
+        better = _refit_control(
+            ctx,
+            current,
+            [r for r in results if r.effect not in held],
+            current_fits,
+            current_ms,
+            rnd,
+            progress,
+        )
         if better is not None:
             current_fits, current_ms, current_cmd, current_units, record = better
             refits.append(record)
@@ -378,6 +453,17 @@ def diagnose_experiments(
         if rnd == 0:
             pool_names = [r.effect for r in results]
         best = pick_winner(results, st)
+        while best is not None and best.effect in held:
+            # A selected effect is fitted with the free parameters too: a winner known from
+            # its held screening only is refitted from all starts, and the round picks
+            # again.
+            now = (current, current_ms, current_cmd, current_units)
+            _refine(
+                [by_name[best.effect]], now, ctx, results, held, skipped, rnd, progress, executor
+            )
+            held.discard(best.effect)
+            results.sort(key=lambda r: r.validation_rms_m)
+            best = pick_winner(results, st)
         if best is None:
             break
         selected.append(best.effect)
@@ -460,11 +546,45 @@ def refine_names(results: Sequence[CandidateResult], st: DiagnosisSettings) -> l
     return names
 
 
+def _refine(
+    items: Sequence[tuple[int, Candidate]],
+    now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
+    ctx: _Ctx,
+    results: list[CandidateResult],
+    held: set[str],
+    skipped: dict[str, str],
+    rnd: int,
+    progress: bool,
+    executor: Any,
+) -> None:
+    """Refit the candidates ``items`` from all starts (:func:`_judge` without ``screen``)
+    against the model ``now``, each result replacing the candidate's in ``results`` (in
+    place) and leaving ``held``; a candidate whose refit fails keeps its screened result
+    and the reason goes to ``skipped``."""
+    where = {r.effect: j for j, r in enumerate(results)}
+    for _, cand, refined, exc, seconds in _concurrently(
+        items, now, ctx, screen=False, executor=executor
+    ):
+        held.discard(cand.name)
+        if refined is None:
+            skipped[cand.name] = f"round {rnd + 1}: refit failed: {exc}"
+            continue
+        results[where[cand.name]] = refined
+        print_progress(
+            f"  round {rnd + 1} refit {cand.name:26s} validation "
+            f"{refined.validation_rms_m * 1e9:9.1f} nm  shrink {refined.shrink:+.1%}"
+            f"{'  significant' if refined.significant else ''}"
+            f"  ({seconds:.1f} s)",
+            progress,
+        )
+
+
 def _concurrently(
     items: Sequence[tuple[int, Candidate]],
     now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
     ctx: _Ctx,
     screen: bool,
+    executor: Any = None,
 ) -> Iterator[tuple[int, Candidate, CandidateResult | None, Exception | None, float]]:
     """:func:`_judge` of each ``(index, candidate)`` against the model ``now`` (system,
     validation mean squares, command residuals, move units), up to
@@ -473,21 +593,88 @@ def _concurrently(
     candidate that could not be fitted (``ValueError``/``RuntimeError``). The candidates'
     fits are independent (each its own problem, starts and seed), so the results do not
     depend on how many run at once: two at once overlap one fit's Python work with the
-    other's simulations (which release the GIL)."""
+    other's simulations (which release the GIL).
+
+    With ``executor`` (anything with ``submit``: a :class:`concurrent.futures.Executor`, a
+    ``dask.distributed.Client``) every candidate is one task of :func:`_judge_task`, its
+    arguments pickled once by ``cloudpickle`` (the model's closures travel by value), and
+    the executor decides how many run at once. A task has its own
+    :class:`SimulationCache` (the diagnosis's stays in this process): the results are the
+    same, only a refit does not find its screening's simulations."""
+    if executor is not None:
+        yield from _on_executor(items, now, ctx, screen, executor)
+        return
 
     def one(item: tuple[int, Candidate]) -> tuple[CandidateResult | None, Exception | None, float]:
-        t0 = time.perf_counter()
-        try:
-            r = _judge(item[1], *now, ctx, item[0], screen=screen)
-        except (ValueError, RuntimeError) as exc:
-            return None, exc, time.perf_counter() - t0
-        return r, None, time.perf_counter() - t0
+        return _judge_timed(item[1], now, ctx, item[0], screen)
 
     threads = max(1, min(ctx.st.parallel_candidates, len(items)))
     with ThreadPoolExecutor(max_workers=threads) as pool:
         outcomes = pool.map(one, items) if threads > 1 else map(one, items)
         for (i, cand), (r, exc, dt) in zip(items, outcomes, strict=True):
             yield i, cand, r, exc, dt
+
+
+def _judge_timed(
+    cand: Candidate,
+    now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
+    ctx: _Ctx,
+    index: int,
+    screen: bool,
+) -> tuple[CandidateResult | None, Exception | None, float]:
+    """:func:`_judge`, its error if the candidate cannot be fitted, and its seconds."""
+    t0 = time.perf_counter()
+    try:
+        r = _judge(cand, *now, ctx, index, screen=screen)
+    except (ValueError, RuntimeError) as exc:
+        return None, exc, time.perf_counter() - t0
+    return r, None, time.perf_counter() - t0
+
+
+def _judge_task(
+    shared: bytes, index: int, screen: bool
+) -> tuple[CandidateResult | None, Exception | None, float]:
+    """One candidate's :func:`_judge_timed` on an executor's worker: ``shared`` is the
+    ``cloudpickle`` of ``(candidates by index, now, ctx)`` (the same bytes for every task of
+    a round). Top level, so that it pickles by reference."""
+    import cloudpickle
+
+    cands, now, ctx = cloudpickle.loads(shared)
+    mb = ctx.st.simulation_cache_mb
+    ctx = dataclasses.replace(ctx, cache=SimulationCache(mb * 1e6) if mb > 0 else None)
+    return _judge_timed(cands[index], now, ctx, index, screen)
+
+
+def _on_executor(
+    items: Sequence[tuple[int, Candidate]],
+    now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
+    ctx: _Ctx,
+    screen: bool,
+    executor: Any,
+) -> Iterator[tuple[int, Candidate, CandidateResult | None, Exception | None, float]]:
+    try:
+        import cloudpickle
+    except ImportError as exc:  # pragma: no cover - cloudpickle comes with dask
+        raise ImportError(
+            "diagnose_experiments(executor=...) pickles the candidates' fits with "
+            "cloudpickle: install it (pip install 'nanostage[dask]')"
+        ) from exc
+    shared = cloudpickle.dumps(
+        ({i: c for i, c in items}, now, dataclasses.replace(ctx, cache=None))
+    )
+    futures = []
+    try:
+        for i, _ in items:
+            futures.append(executor.submit(_judge_task, shared, i, screen))
+        for (i, cand), fut in zip(items, futures, strict=True):
+            r, exc, dt = fut.result()
+            yield i, cand, r, exc, dt
+    except BaseException:
+        # A failed task, Ctrl-C or a generator closed early: the tasks not yet started are
+        # cancelled. The executor is the caller's: it is not shut down.
+        for f in futures:
+            f.cancel()
+        raise
 
 
 def crossfit_folds(n_train: int, n_validate: int, k: int) -> list[tuple[list[int], list[int]]]:
@@ -667,15 +854,16 @@ def _judge(
     st = ctx.st
     extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
     setting: int | None = None
+    hold = screen and st.screen_holds_nominal
     if cand.discrete:
         best: tuple[list[Fit], FloatArray, list[float | None], int, FloatArray] | None = None
         # Screening fits only the setting whose start fits the training experiments best
         # (each setting's fit costs as much as a whole continuous candidate's); refining
         # fits every setting.
-        ks = ctx.best_start_setting(base, cand) if screen else cand.discrete
+        ks = ctx.best_start_setting(base, cand, warm_only=hold) if screen else cand.discrete
         for k in ks:
             fits, ms, _, cmd, units = ctx.fit_and_validate(
-                base, (), _at_setting(cand, k), 1, st.seed + index, screen
+                base, (), _at_setting(cand, k), 1, st.seed + index, screen, hold=hold
             )
             train = float(np.mean([f.train_rms_m for f in fits]))
             if best is None or train < float(np.mean([f.train_rms_m for f in best[0]])):
@@ -701,6 +889,7 @@ def _judge(
             # not the model before: screen it from the warm start and the scan's best.
             st.screen_starts_friction_models if friction_model else 1,
             cand.scan_starts,
+            hold=hold,
         )
         k_params = len(cand.params)
     result = _verdict(

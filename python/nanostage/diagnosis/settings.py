@@ -98,6 +98,15 @@ class DiagnosisSettings:
     #: restarted the delay model from 511 to 401 nm, and the compliance was selected as a
     #: second effect.
     refit_control_top: int | None = None
+    #: Screen each candidate with only its own parameters free, the free nominal parameters
+    #: held at the model before's fitted (warm) values: a finite-difference Jacobian then
+    #: costs (own parameters + 1) simulation batches instead of (free nominal + own + 1),
+    #: and a delay is judged at its best setting without a fit. The screening only ranks
+    #: the candidates: the best :attr:`refine_top` (and the best friction model) are
+    #: refitted with every free parameter as before, a winner known from its screening
+    #: only is refitted before it is selected, and the refit control restarts from the
+    #: refitted candidates only (a held candidate's free values are the model before's).
+    screen_holds_nominal: bool = True
     #: Points of the coarse scan over a candidate's own parameters before its local fits,
     #: per parameter of the candidate (at most :attr:`scan_points_max`). The closed loop's
     #: gap is rugged where stick-slip makes the response chaotic: on a dwell case the good
