@@ -667,8 +667,8 @@ def _on_executor(
         for i, _ in items:
             futures.append(executor.submit(_judge_task, shared, i, screen))
         for (i, cand), fut in zip(items, futures, strict=True):
-            r, exc, dt = fut.result()
-            yield i, cand, r, exc, dt
+            r, err, dt = fut.result()
+            yield i, cand, r, err, dt
     except BaseException:
         # A failed task, Ctrl-C or a generator closed early: the tasks not yet started are
         # cancelled. The executor is the caller's: it is not shut down.
