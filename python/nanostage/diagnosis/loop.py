@@ -30,6 +30,7 @@ from .objective import (
 )
 from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
+from .signatures import SignatureJudge
 
 FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
 
@@ -328,6 +329,23 @@ def diagnose_experiments(
             SimulationCache(st.simulation_cache_mb * 1e6) if st.simulation_cache_mb > 0 else None
         ),
     )
+    # The marks of the traces (limit cycles, rest and ramp commands, breakaway) judge the
+    # candidates of a tie that the validation gap cannot break (pick_winner).
+    judge = SignatureJudge(
+        list(every.values()),
+        ctx.adapt,
+        nominal.encoder.count_m,
+        nominal.sample_period_s,
+        ctx.cache,
+        st.threads,
+    )
+    signature_distances: list[dict[str, float]] = []
+
+    def signature_distance(r: CandidateResult) -> float:
+        d = judge.distance(r.fit.system)
+        signature_distances[-1][r.effect] = d
+        return d
+
     print_progress(
         f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
         f"{len(folds)} fold(s))",
@@ -452,7 +470,8 @@ def diagnose_experiments(
         rounds.append(results)
         if rnd == 0:
             pool_names = [r.effect for r in results]
-        best = pick_winner(results, st)
+        signature_distances.append({})
+        best = pick_winner(results, st, signature_distance, st.signature_margin)
         while best is not None and best.effect in held:
             # A selected effect is fitted with the free parameters too: a winner known from
             # its held screening only is refitted from all starts, and the round picks
@@ -463,7 +482,7 @@ def diagnose_experiments(
             )
             held.discard(best.effect)
             results.sort(key=lambda r: r.validation_rms_m)
-            best = pick_winner(results, st)
+            best = pick_winner(results, st, signature_distance, st.signature_margin)
         if best is None:
             break
         selected.append(best.effect)
@@ -493,6 +512,10 @@ def diagnose_experiments(
         "skipped": skipped,
         "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
+        "signature_judge": judge,
+        # Per round, the signature χ² of each candidate a tie put before the judge (the last
+        # evaluation of each, after any refit).
+        "signature_distances": signature_distances,
         "cache": ctx.cache,
         "simulations": {
             "simulated": None if ctx.cache is None else ctx.cache.misses,
