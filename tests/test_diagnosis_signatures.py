@@ -202,3 +202,24 @@ def test_misses_are_the_features_off_by_more_than_three_combined_errors() -> Non
     assert [d["feature"] for d in out] == ["b"]
     assert out[0]["z"] == pytest.approx(1.0 / math.hypot(0.1, 0.1))
     assert [d["feature"] for d in misses(m, s, z_min=1.5)] == ["b", "c", "a"]
+
+
+def test_report_names_the_signature_chi_square_of_a_tie() -> None:
+    from nanostage.diagnosis.report import markdown_report
+
+    report = {
+        "selected": ["offset_force"],
+        "indistinguishable": {"offset_force": ["asymmetric_friction"]},
+        "tie_break": "occam_factor",
+        "tie_signatures": [
+            {"round": 1, "distances": {"asymmetric_friction": 41.0, "offset_force": 2.5}}
+        ],
+    }
+    md = markdown_report(report)
+    assert (
+        "signature χ² against the measured marks: `offset_force` 2.5, "
+        "`asymmetric_friction` 41" in md
+    )
+    # No distances for the round: nothing said about signatures.
+    report["tie_signatures"] = [{"round": 2, "distances": {"a": 1.0, "b": 2.0}}]
+    assert "signature χ²" not in markdown_report(report)

@@ -495,6 +495,29 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     return "\n".join(lines) + "\n" if lines else ""
 
 
+def _tie_signatures(report: Mapping[str, Any], effect: str) -> str:
+    """The signature χ² of the candidates tied with a selected ``effect`` (its round's
+    entry of ``tie_signatures``), in words; empty without one."""
+    sel = report.get("selected") or []
+    rounds = report.get("tie_signatures") or []
+    if effect not in sel or not isinstance(rounds, list | tuple):
+        return ""
+    rnd = list(sel).index(effect) + 1
+    d = next(
+        (r.get("distances") for r in rounds if isinstance(r, Mapping) and r.get("round") == rnd),
+        None,
+    )
+    if not isinstance(d, Mapping) or len(d) < 2:
+        return ""
+    parts = ", ".join(
+        f"`{_md_escape(str(k))}` {float(v):.3g}" for k, v in sorted(d.items(), key=lambda kv: kv[1])
+    )
+    return (
+        f"; signature χ² against the measured marks: {parts} (those within "
+        "`signature_margin` of the smallest stay in the tie)"
+    )
+
+
 def _nominal_misses(sig: Any, top: int = 4) -> str:
     """The signature features the calibrated nominal model misses, in words."""
     if not isinstance(sig, Mapping):
@@ -650,6 +673,7 @@ def markdown_report(
                         " — the validation data cannot tell it from "
                         + ", ".join(f"`{_md_escape(t)}`" for t in ties[s])
                         + " (see the advice)"
+                        + _tie_signatures(report, s)
                         + (
                             "; selected by the larger Occam factor (its parameters "
                             "pinned down to a larger share of their bounds)"
@@ -845,6 +869,7 @@ def markdown_report(
         "selected",
         "indistinguishable",
         "tie_break",
+        "tie_signatures",
         "crossfit",
         "evidence",
         "advice",

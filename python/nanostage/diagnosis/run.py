@@ -750,6 +750,12 @@ def assemble_report(
         "selected": list(out["selected"]),
         "indistinguishable": ties_of_selected(rounds, out["selected"]),
         "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",
+        # Per round with a tie: the signature χ² of each tied candidate (the judge's).
+        "tie_signatures": [
+            {"round": i + 1, "distances": dict(d)}
+            for i, d in enumerate(out.get("signature_distances") or [])
+            if d
+        ],
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": single_best.effect if single_best else None,
