@@ -147,15 +147,23 @@ def test_signatures_narrow_a_tie_and_change_nothing_else() -> None:
     b = _result("b", 1.02e-7, [1.1e-14, 1.0e-14, 1.0e-14], occam=-1.0)
     results = [a, b]
     assert pick_winner(results, st) is b  # today's rule: the Occam factor
-    assert pick_winner(results, st, lambda r: 0.0, 4.0) is b  # signatures equal: same
-    far = {"a": 1.0, "b": 30.0}
-    assert pick_winner(results, st, lambda r: far[r.effect], 4.0) is a
-    assert pick_winner(results, st, lambda r: far[r.effect], 0.0) is b  # margin 0: off
-    near = {"a": 1.0, "b": 4.5}
-    assert pick_winner(results, st, lambda r: near[r.effect], 4.0) is b
+    five = 5  # features in the χ²
+
+    def chi(table: dict[str, float]) -> object:
+        return lambda r: (table[r.effect], five)
+
+    assert pick_winner(results, st, chi({"a": 0.0, "b": 0.0}), 4.0) is b  # equal: same
+    assert pick_winner(results, st, chi({"a": 1.0, "b": 30.0}), 4.0) is a
+    assert pick_winner(results, st, chi({"a": 1.0, "b": 30.0}), 0.0) is b  # margin 0: off
+    assert pick_winner(results, st, chi({"a": 1.0, "b": 4.5}), 4.0) is b  # within margin
+    # The closest model itself misses the features (χ² 50 over 5 features: the errors
+    # understate the mismatch tenfold in variance): the margin scales by 10, and a χ² of
+    # 80 is no longer a clear mark against it; 100 is.
+    assert pick_winner(results, st, chi({"a": 50.0, "b": 80.0}), 4.0) is b
+    assert pick_winner(results, st, chi({"a": 50.0, "b": 100.0}), 4.0) is a
     no_occam = dataclasses.replace(st, occam_tie_break=False)
     assert pick_winner(results, no_occam) is a
-    assert pick_winner(results, no_occam, lambda r: {"a": 30.0, "b": 1.0}[r.effect], 4.0) is b
+    assert pick_winner(results, no_occam, chi({"a": 30.0, "b": 1.0}), 4.0) is b
 
 
 def test_judge_gives_the_generating_model_distance_zero_and_an_offset_force_more() -> None:

@@ -341,10 +341,10 @@ def diagnose_experiments(
     )
     signature_distances: list[dict[str, float]] = []
 
-    def signature_distance(r: CandidateResult) -> float:
-        d = judge.distance(r.fit.system)
-        signature_distances[-1][r.effect] = d
-        return d
+    def signature_chi_square(r: CandidateResult) -> tuple[float, int]:
+        chi2, n = judge.chi_square(r.fit.system)
+        signature_distances[-1][r.effect] = chi2
+        return chi2, n
 
     print_progress(
         f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
@@ -471,7 +471,7 @@ def diagnose_experiments(
         if rnd == 0:
             pool_names = [r.effect for r in results]
         signature_distances.append({})
-        best = pick_winner(results, st, signature_distance, st.signature_margin)
+        best = pick_winner(results, st, signature_chi_square, st.signature_margin)
         while best is not None and best.effect in held:
             # A selected effect is fitted with the free parameters too: a winner known from
             # its held screening only is refitted from all starts, and the round picks
@@ -482,7 +482,7 @@ def diagnose_experiments(
             )
             held.discard(best.effect)
             results.sort(key=lambda r: r.validation_rms_m)
-            best = pick_winner(results, st, signature_distance, st.signature_margin)
+            best = pick_winner(results, st, signature_chi_square, st.signature_margin)
         if best is None:
             break
         selected.append(best.effect)

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..output import to_jsonable, write_json
 from .segments import PHASES
+from .signatures import SIGNATURE_UNITS
 
 __all__ = [
     "FIGURE_NAMES",
@@ -277,6 +278,14 @@ def _limit_cycles(gap: Any) -> str:
     return _table(["Experiment", "Move", "Amplitude [µm]", "Period [ms]"], rows)
 
 
+def _signature_value(unit: str, v: Any) -> str:
+    """A signature feature's value: lengths in µm, the rest in their own unit."""
+    f = _num(v)
+    if f is None:
+        return "—"
+    return f"{f * _UM:.4g}" if unit == "m" else f"{f:.4g}"
+
+
 def _signatures(sig: Any) -> str:
     """The report's ``signatures`` as a table: each feature measured (± its standard
     error) and simulated by each compared model, and each model's χ² from the measured."""
@@ -289,24 +298,24 @@ def _signatures(sig: Any) -> str:
         eff = m.get("effect")
         return f"`{_md_escape(str(eff))}`" if eff else _md_escape(str(m.get("model")))
 
-    def cell(d: Any, key: str, with_error: bool) -> str:
+    def cell(d: Any, unit: str, with_error: bool) -> str:
         if not isinstance(d, Mapping):
             return "—"
-        v = _fmt(key, d.get("value"))
+        v = _signature_value(unit, d.get("value"))
         se = _num(d.get("std_error"))
-        return f"{v} ± {_fmt(key, se)}" if with_error and se is not None else v
+        return f"{v} ± {_signature_value(unit, se)}" if with_error and se is not None else v
 
     head = ["Feature", "measured", *(label(m) for m in models)]
     rows = []
     for key, d in measured.items():
-        unit = d.get("unit", "") if isinstance(d, Mapping) else ""
-        name = f"{key}{_unit(key) or (f' [{unit}]' if unit and unit != '-' else '')}"
+        unit = str(d.get("unit", "")) if isinstance(d, Mapping) else ""
+        name = key + ("" if unit in ("", "-") else f" [{'µm' if unit == 'm' else unit}]")
         rows.append(
             [
                 _md_escape(name),
-                cell(d, key, True),
+                cell(d, unit, True),
                 *(
-                    cell((m.get("features") or {}).get(key), key, False)
+                    cell((m.get("features") or {}).get(key), unit, False)
                     if "error" not in m
                     else "failed"
                     for m in models
@@ -535,9 +544,13 @@ def _nominal_misses(sig: Any, top: int = 4) -> str:
     parts = []
     for d in (nominal.get("misses") or [])[:top]:
         key = str(d.get("feature"))
+        unit = SIGNATURE_UNITS.get(key, "")
+        shown = "µm" if unit == "m" else unit
+        tail = "" if shown in ("", "-") else f" {shown}"
         parts.append(
-            f"`{_md_escape(key)}` measured {_fmt(key, d.get('measured'))}, "
-            f"simulated {_fmt(key, d.get('simulated'))} ({float(d.get('z', 0.0)):+.1f}σ)"
+            f"`{_md_escape(key)}` measured {_signature_value(unit, d.get('measured'))}{tail}, "
+            f"simulated {_signature_value(unit, d.get('simulated'))}{tail} "
+            f"({float(d.get('z', 0.0)):+.1f}σ)"
         )
     return "; ".join(parts)
 

@@ -63,6 +63,7 @@ __all__ = [
     "SIGNATURE_UNITS",
     "Feature",
     "SignatureJudge",
+    "chi_square",
     "distance",
     "misses",
     "signatures_of",
@@ -323,7 +324,15 @@ def _breakaway_feature(rows: Sequence[tuple[int, float, float]], cq: float) -> d
 def distance(measured: Mapping[str, Feature], simulated: Mapping[str, Feature]) -> float:
     """χ² of a model's simulated signature against the measured one: the sum over the
     features both have of ``(measured − simulated)² / (se_measured² + se_simulated²)``."""
+    return chi_square(measured, simulated)[0]
+
+
+def chi_square(
+    measured: Mapping[str, Feature], simulated: Mapping[str, Feature]
+) -> tuple[float, int]:
+    """:func:`distance` and the number of features it sums over."""
     total = 0.0
+    n = 0
     for name, m in measured.items():
         s = simulated.get(name)
         if s is None:
@@ -331,7 +340,8 @@ def distance(measured: Mapping[str, Feature], simulated: Mapping[str, Feature]) 
         var = m.std_error**2 + s.std_error**2
         if var > 0.0 and math.isfinite(var):
             total += (m.value - s.value) ** 2 / var
-    return total
+            n += 1
+    return total, n
 
 
 class SignatureJudge:
@@ -388,6 +398,10 @@ class SignatureJudge:
     def distance(self, system: System) -> float:
         """:func:`distance` of ``system``'s simulated signature from the measured one."""
         return distance(self.measured, self.simulated(system))
+
+    def chi_square(self, system: System) -> tuple[float, int]:
+        """:func:`chi_square` of ``system``'s simulated signature against the measured."""
+        return chi_square(self.measured, self.simulated(system))
 
 
 def misses(
