@@ -197,3 +197,25 @@ def test_screening_holds_the_free_nominal_parameters_and_the_winner_is_refitted(
     moved = _diagnose(case, settings=dc.replace(none, screen_holds_nominal=False))["rounds"][0]
     assert all(free in r.fit.std_errors for r in moved)
     assert any([f.values[free] for f in r.fold_fits] != warm for r in moved)
+
+
+def test_diagnose_passes_its_executor_to_the_candidate_fits(case: Path) -> None:
+    """The user-facing ``diagnose(executor=)``: the same report as a local run (the
+    selection, both gaps, every candidate's verdict)."""
+    from nanostage.diagnosis.run import diagnose
+
+    def essence(report: dict[str, Any]) -> Any:
+        return (
+            report["selected"],
+            report["gap_before"]["total_rms_m"],
+            report["gap_after"]["total_rms_m"],
+            [(c["effect"], c["validation_rms_m"], c["significant"]) for c in report["candidates"]],
+        )
+
+    local_report = diagnose(case, None, settings=FAST, progress=False).report
+    with _threads() as executor:
+        remote_report = diagnose(
+            case, None, settings=FAST, progress=False, executor=executor
+        ).report
+    assert essence(remote_report) == essence(local_report)
+    assert local_report["selected"][:1] == ["asymmetric_friction"]

@@ -463,13 +463,17 @@ def diagnose(
     progress: bool = True,
     figures: bool = True,
     manifest_path: str | Path | None = None,
+    executor: Any = None,
 ) -> Diagnosis:
     """Diagnose the gap between a nominal model and measured experiments (see the module
     docstring for the report). All input errors are raised before any fitting, and so is
     an unusable ``out_dir`` (:func:`nanostage.output.check_output_dir`); the folder is
     written whole or not at all (:func:`nanostage.output.staged_output`).
     ``manifest_path``: the manifest's path the report gives (default: where it was read;
-    a caller that reads it from a staging folder names its final place)."""
+    a caller that reads it from a staging folder names its final place). ``executor``: a
+    :class:`concurrent.futures.Executor` or a ``dask.distributed.Client`` on which the
+    candidate fits of each round run (:func:`~nanostage.diagnosis.loop.diagnose_experiments`;
+    the report is bit-identical to a local run)."""
     if out_dir is not None:
         check_output_dir(out_dir)
     setup = _setup(manifest)
@@ -489,6 +493,7 @@ def diagnose(
         candidates=names,
         settings=st,
         progress=progress,
+        executor=executor,
     )
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
     report["crossfit"] = _crossfit(setup, out, st, _lead(nominal), progress)
