@@ -13,6 +13,7 @@ import pytest
 import nanostage
 from nanostage import presets
 from nanostage.config import DahlFriction, System
+from nanostage.diagnosis.candidates import applicable_candidates
 from nanostage.effects import Effects, Gms, LuGre
 from nanostage.friction import friction_response
 from nanostage.model_file import model_to_toml, parse_model
@@ -186,3 +187,43 @@ def test_asymmetry_out_of_range_is_named() -> None:
     assert isinstance(plant, nanostage.Plant)
     with pytest.raises(nanostage.ConfigError, match=r"plant\.dahl\.asymmetry = 0\.2"):
         nanostage.simulate_plant(plant, np.zeros(5), sample_period_s=1e-3)
+
+
+def test_asymmetric_friction_candidate_sets_motor_and_table_levels() -> None:
+    seed = presets.seed()
+    cands, _ = applicable_candidates(seed, ["asymmetric_friction"])
+    (cand,) = cands
+    assert [p.name for p in cand.params] == ["asymmetry", "table_asymmetry"]
+    s = cand.apply(seed, [0.1, -0.25])
+    assert s.effects.motor_friction.asymmetry == 0.1
+    assert s.plant.dahl.asymmetry == -0.25  # type: ignore[union-attr]
+    s = cand.apply(seed, [0.2, 0.2])
+    # A truth with the same asymmetry on both sides is the candidate at that value.
+    truth = dataclasses.replace(
+        _with_dahl_asymmetry(seed, 0.2),
+        effects=dataclasses.replace(
+            seed.effects,
+            motor_friction=dataclasses.replace(seed.effects.motor_friction, asymmetry=0.2),
+        ),
+    )
+    assert s == truth
+    # A LuGre table friction in the effects takes it instead of the (unused) Dahl.
+    lugre = LuGre(
+        stiffness_n_per_m=1e7,
+        damping_n_s_per_m=0.0,
+        viscous_n_s_per_m=0.0,
+        coulomb_force_n=30.4,
+        static_force_n=40.0,
+        stribeck_velocity_m_per_s=5e-4,
+    )
+    s = cand.apply(dataclasses.replace(seed, effects=Effects(table_friction=lugre)), [-0.3, -0.3])
+    assert isinstance(s.effects.table_friction, LuGre)
+    assert s.effects.table_friction.asymmetry == -0.3
+    assert s.effects.motor_friction.asymmetry == -0.3
+    assert s.plant.dahl.asymmetry == 0.0  # type: ignore[union-attr]
+    # The force drive keeps its two-parameter static-map candidate.
+    emps = presets.emps()
+    (cand_e,), _ = applicable_candidates(emps, ["asymmetric_friction"])
+    assert [p.name for p in cand_e.params] == ["asymmetry", "viscous_asymmetry"]
+    e = cand_e.apply(emps, [0.1, -0.2])
+    assert (e.plant.friction.asymmetry, e.plant.friction.viscous_asymmetry) == (0.1, -0.2)  # type: ignore[union-attr]

@@ -113,6 +113,19 @@ def _modify_static(system: System, **changes: object) -> System:
     return replace(system, plant=replace(p, friction=friction))
 
 
+def _with_table_asymmetry(system: System, asymmetry: float) -> System:
+    """``system`` with the direction asymmetry of its table friction law set: a LuGre or GMS
+    table friction of the effects, else the Dahl law of a seed plant. A static table map
+    (where :func:`_modify_static` acts) and a force drive's map are left as they are."""
+    tf = system.effects.table_friction
+    if isinstance(tf, LuGre | Gms):
+        return _fx(system, table_friction=replace(tf, asymmetry=asymmetry))
+    p = system.plant
+    if tf is None and isinstance(p, Plant):
+        return replace(system, plant=replace(p, dahl=replace(p.dahl, asymmetry=asymmetry)))
+    return system
+
+
 def _with_plant(system: System, change: Callable[[Any], Any]) -> System:
     """``system`` with ``change`` applied to *its own* plant. A candidate's ``apply`` must
     start from the system it is given (which carries the fitted free parameters), never from
@@ -307,10 +320,18 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                 apply=lambda s, v: _modify_static(s, asymmetry=v[0], viscous_asymmetry=v[1]),
                 signature=signature,
             )
+        # The seed: an asymmetry of the motor map and one of the table law (the Dahl of the
+        # plant, or a LuGre or GMS set in the effects), each its own: where it sits, and how
+        # much on each side, is unknown. While sliding they act together (a bias of
+        # a_m·F_m + a_t·F_t); the breakaway and presliding tell the sides apart, and where
+        # the data do not, the Occam factor counts the unconstrained direction as free.
         return Candidate(
             name="asymmetric_friction",
-            params=(Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),),
-            apply=lambda s, v: _modify_static(s, asymmetry=v[0]),
+            params=(
+                Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
+                Param(name="table_asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
+            ),
+            apply=lambda s, v: _with_table_asymmetry(_modify_static(s, asymmetry=v[0]), v[1]),
             signature=signature,
         )
 
