@@ -15,6 +15,7 @@ from typing import Any, cast
 
 import numpy as np
 import pytest
+from diagnosis_cases import step_case
 
 import nanostage as ns
 from nanostage import presets
@@ -71,7 +72,6 @@ from nanostage.diagnosis.run import (
 )
 from nanostage.diagnosis.select import CandidateResult, log_occam_factor, pick_winner
 from nanostage.diagnosis.settings import DiagnosisSettings, with_starts
-from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effects import (
     EFFECT_NAMES,
     DwellStaticFriction,
@@ -590,35 +590,7 @@ def test_noise_floor_ignores_the_phase_of_a_limit_cycle_in_repeats() -> None:
 
 def _case(tmp_path: Path, effects: Effects, seed: int) -> Path:
     """Four seed-axis experiments (both directions), two train, two validate."""
-    truth = dc.replace(
-        ns.presets.seed(1e-3),
-        effects=dc.replace(effects, stochastic=StochasticFriction(level_spread=0.003)),
-    )
-    lines = [
-        '[model]\npreset = "seed"\nfree = ["plant.dahl.coulomb_force_n"]\n',
-        "[diagnosis]",
-        'candidates = ["asymmetric_friction", "offset_force", "lead_periodic_friction"]',
-        f"seed = {seed}\n",
-    ]
-    design = [(5e-4, 1e-3, "train"), (-5e-4, 4e-3, "train"), (5e-4, 7e-3, "validate")]
-    design += [(-5e-4, 9.5e-3, "validate")]
-    for i, (step, x0, role) in enumerate(design):
-        ref = np.full(330, x0)
-        ref[30:] = x0 + step
-        g = ns.presets.table1_gains(abs(step))
-        s = ns.presets.with_gains(truth, kp=g[0], ki=g[1], kd=g[2])
-        tr = ns.simulate(s, ref, seed=seed * 10 + i)
-        e = Experiment(
-            name=f"e{i}", time_s=tr.time_s, reference_m=ref, position_m=tr.encoder_position_m
-        )
-        write_trace_csv(e, tmp_path / f"e{i}.csv")
-        lines += [
-            "[[experiment]]",
-            f'name = "e{i}"\nfile = "e{i}.csv"\nrole = "{role}"',
-            f"controller = {{ kp = {g[0]}, ki = {g[1]}, kd = {g[2]} }}\n",
-        ]
-    (tmp_path / "m.toml").write_text("\n".join(lines))
-    return tmp_path / "m.toml"
+    return step_case(tmp_path, effects, seed)
 
 
 FAST = DiagnosisSettings(n_starts_nominal=1, n_starts_candidate=1, forward_rounds=2)

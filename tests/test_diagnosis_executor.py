@@ -10,16 +10,13 @@ from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
+from diagnosis_cases import step_case
 
-import nanostage as ns
 from nanostage.diagnosis.loop import diagnose_experiments
 from nanostage.diagnosis.run import _setup
 from nanostage.diagnosis.settings import DiagnosisSettings
-from nanostage.diagnosis.traces import write_trace_csv
-from nanostage.effects import Effects, FrictionModifiers, StochasticFriction
-from nanostage.experiment import Experiment
+from nanostage.effects import Effects, FrictionModifiers
 
 #: Few starts, two rounds, two candidates: a few seconds per diagnosis.
 FAST = DiagnosisSettings(n_starts_nominal=1, n_starts_candidate=1, forward_rounds=2, seed=3)
@@ -30,39 +27,13 @@ CANDIDATES = ["asymmetric_friction", "computation_delay"]
 def case(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Four short seed-axis steps (both directions) with a hidden friction asymmetry; two
     train, two validate; the Coulomb level free."""
-    tmp = tmp_path_factory.mktemp("executor")
-    truth = dc.replace(
-        ns.presets.seed(1e-3),
-        effects=Effects(
-            motor_friction=FrictionModifiers(asymmetry=0.3),
-            stochastic=StochasticFriction(level_spread=0.003),
-        ),
+    return step_case(
+        tmp_path_factory.mktemp("executor"),
+        Effects(motor_friction=FrictionModifiers(asymmetry=0.3)),
+        seed=3,
+        candidates=CANDIDATES,
+        n_samples=250,
     )
-    lines = [
-        '[model]\npreset = "seed"\nfree = ["plant.dahl.coulomb_force_n"]\n',
-        "[diagnosis]",
-        f"candidates = {CANDIDATES!r}".replace("'", '"'),
-        "seed = 3\n",
-    ]
-    design = [(5e-4, 1e-3, "train"), (-5e-4, 4e-3, "train"), (5e-4, 7e-3, "validate")]
-    design += [(-5e-4, 9.5e-3, "validate")]
-    for i, (step, x0, role) in enumerate(design):
-        ref = np.full(250, x0)
-        ref[30:] = x0 + step
-        g = ns.presets.table1_gains(abs(step))
-        s = ns.presets.with_gains(truth, kp=g[0], ki=g[1], kd=g[2])
-        tr = ns.simulate(s, ref, seed=30 + i)
-        e = Experiment(
-            name=f"e{i}", time_s=tr.time_s, reference_m=ref, position_m=tr.encoder_position_m
-        )
-        write_trace_csv(e, tmp / f"e{i}.csv")
-        lines += [
-            "[[experiment]]",
-            f'name = "e{i}"\nfile = "e{i}.csv"\nrole = "{role}"',
-            f"controller = {{ kp = {g[0]}, ki = {g[1]}, kd = {g[2]} }}\n",
-        ]
-    (tmp / "m.toml").write_text("\n".join(lines), encoding="utf-8")
-    return tmp / "m.toml"
 
 
 def _diagnose(

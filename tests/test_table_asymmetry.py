@@ -22,6 +22,19 @@ SPEED_M_PER_S = 2e-3
 RAMP_S = 0.4
 
 
+def _lugre(**changes: float) -> LuGre:
+    """A LuGre table law of the seed's Coulomb level (30.4 N), with ``changes``."""
+    base = LuGre(
+        stiffness_n_per_m=1e7,
+        damping_n_s_per_m=0.0,
+        viscous_n_s_per_m=0.0,
+        coulomb_force_n=30.4,
+        static_force_n=40.0,
+        stribeck_velocity_m_per_s=5e-4,
+    )
+    return dataclasses.replace(base, **changes)
+
+
 def _with_dahl_asymmetry(system: System, a: float) -> System:
     plant = system.plant
     assert isinstance(plant, nanostage.Plant)
@@ -107,15 +120,7 @@ def test_friction_response_slides_at_the_asymmetric_levels(law: str) -> None:
     if law == "dahl":
         friction = DahlFriction(coulomb_force_n=fc, stiffness_n_per_m=7.5e7, asymmetry=a)
     elif law == "lugre":
-        friction = LuGre(
-            stiffness_n_per_m=1e7,
-            damping_n_s_per_m=0.0,
-            viscous_n_s_per_m=0.0,
-            coulomb_force_n=fc,
-            static_force_n=1.3 * fc,
-            stribeck_velocity_m_per_s=5e-4,
-            asymmetry=a,
-        )
+        friction = _lugre(coulomb_force_n=fc, static_force_n=1.3 * fc, asymmetry=a)
     else:
         friction = Gms(
             stiffness_n_per_m=(3e7, 1e7, 3e6),
@@ -141,14 +146,7 @@ def test_model_file_round_trips_an_asymmetry_and_omits_zero() -> None:
     text = model_to_toml(asym)
     assert "asymmetry = 0.25" in text.split("[plant.dahl]")[1].split("[controller]")[0]
     assert parse_model(text).system == asym
-    lugre = LuGre(
-        stiffness_n_per_m=1e7,
-        damping_n_s_per_m=0.0,
-        viscous_n_s_per_m=0.0,
-        coulomb_force_n=30.4,
-        static_force_n=40.0,
-        stribeck_velocity_m_per_s=5e-4,
-    )
+    lugre = _lugre()
     gms = Gms(
         stiffness_n_per_m=(3e7, 1e7),
         weights=(0.5, 0.5),
@@ -171,15 +169,7 @@ def test_asymmetry_out_of_range_is_named() -> None:
     seed = presets.seed()
     with pytest.raises(nanostage.ConfigError, match=r"dahl\.asymmetry = 0\.95 is invalid"):
         _with_dahl_asymmetry(seed, 0.95)
-    lugre = LuGre(
-        stiffness_n_per_m=1e7,
-        damping_n_s_per_m=0.0,
-        viscous_n_s_per_m=0.0,
-        coulomb_force_n=30.4,
-        static_force_n=40.0,
-        stribeck_velocity_m_per_s=5e-4,
-        asymmetry=-1.0,
-    )
+    lugre = _lugre(asymmetry=-1.0)
     with pytest.raises(nanostage.ConfigError, match=r"table_friction\.asymmetry = -1 is invalid"):
         dataclasses.replace(seed, effects=Effects(table_friction=lugre))
     # The rigid plant alone has no asymmetry: it refuses one rather than ignore it.
@@ -208,14 +198,7 @@ def test_asymmetric_friction_candidate_sets_motor_and_table_levels() -> None:
     )
     assert s == truth
     # A LuGre table friction in the effects takes it instead of the (unused) Dahl.
-    lugre = LuGre(
-        stiffness_n_per_m=1e7,
-        damping_n_s_per_m=0.0,
-        viscous_n_s_per_m=0.0,
-        coulomb_force_n=30.4,
-        static_force_n=40.0,
-        stribeck_velocity_m_per_s=5e-4,
-    )
+    lugre = _lugre()
     s = cand.apply(dataclasses.replace(seed, effects=Effects(table_friction=lugre)), [-0.3, -0.3])
     assert isinstance(s.effects.table_friction, LuGre)
     assert s.effects.table_friction.asymmetry == -0.3

@@ -1,0 +1,61 @@
+"""A small diagnosis case shared by the diagnosis tests: four seed-axis steps of ±0.5 mm (both
+directions) with a hidden effect, two training and two validation experiments, the table's
+Coulomb level free."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+import nanostage as ns
+from nanostage.diagnosis.traces import write_trace_csv
+from nanostage.effects import Effects, StochasticFriction
+from nanostage.experiment import Experiment
+
+#: The candidates of the case's manifest unless given.
+STEP_CASE_CANDIDATES = ("asymmetric_friction", "offset_force", "lead_periodic_friction")
+
+
+def step_case(
+    folder: Path,
+    effects: Effects,
+    seed: int,
+    candidates: Sequence[str] = STEP_CASE_CANDIDATES,
+    n_samples: int = 330,
+) -> Path:
+    """Write the case's traces and manifest into ``folder`` and return the manifest's path.
+    The truth is the seed axis with ``effects`` and a small friction scatter; experiment
+    ``i`` is simulated with seed ``10·seed + i`` (``n_samples`` samples, the step at 30)."""
+    truth = dc.replace(
+        ns.presets.seed(1e-3),
+        effects=dc.replace(effects, stochastic=StochasticFriction(level_spread=0.003)),
+    )
+    names = ", ".join(f'"{c}"' for c in candidates)
+    lines = [
+        '[model]\npreset = "seed"\nfree = ["plant.dahl.coulomb_force_n"]\n',
+        "[diagnosis]",
+        f"candidates = [{names}]",
+        f"seed = {seed}\n",
+    ]
+    design = [(5e-4, 1e-3, "train"), (-5e-4, 4e-3, "train"), (5e-4, 7e-3, "validate")]
+    design += [(-5e-4, 9.5e-3, "validate")]
+    for i, (step, x0, role) in enumerate(design):
+        ref = np.full(n_samples, x0)
+        ref[30:] = x0 + step
+        g = ns.presets.table1_gains(abs(step))
+        s = ns.presets.with_gains(truth, kp=g[0], ki=g[1], kd=g[2])
+        tr = ns.simulate(s, ref, seed=seed * 10 + i)
+        e = Experiment(
+            name=f"e{i}", time_s=tr.time_s, reference_m=ref, position_m=tr.encoder_position_m
+        )
+        write_trace_csv(e, folder / f"e{i}.csv")
+        lines += [
+            "[[experiment]]",
+            f'name = "e{i}"\nfile = "e{i}.csv"\nrole = "{role}"',
+            f"controller = {{ kp = {g[0]}, ki = {g[1]}, kd = {g[2]} }}\n",
+        ]
+    (folder / "m.toml").write_text("\n".join(lines), encoding="utf-8")
+    return folder / "m.toml"
