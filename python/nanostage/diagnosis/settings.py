@@ -117,10 +117,11 @@ class DiagnosisSettings:
     #: refitted candidates only (a held candidate's free values are the model before's).
     #: Measured with and without on the same cases (development seeds, shared machine):
     #: the same selection and the same validation shrink to four digits on every case
-    #: compared (own family seed 3, cases 0–7; independent seed 10103 no effect, seed 10100
-    #: backlash). With 9 free nominal parameters (independent family) it runs fewer
-    #: simulations: 37 564 instead of 44 920 on the no-effect case, 57 628 instead of
-    #: 62 380 on the backlash case (the screening's fell from 26 248 to 11 776, the
+    #: compared (own family seed 3, cases 0–7; independent seed 10103 no effect, 10101
+    #: amplifier lag, 10100 backlash). With 9 free nominal parameters (independent family)
+    #: it runs fewer simulations: 37 564 instead of 44 920 on the no-effect case, 44 120
+    #: instead of 53 196 on the amplifier case, 57 628 instead of 62 380 on the backlash
+    #: case (the screening's fell from 26 248 to 11 776, the
     #: refinement's rose from 28 000 to 37 516: it no longer finds its screening's fits in
     #: the cache). With 3 (own family) there is little to save: from 17 % fewer (offset
     #: force, 25 972 instead of 31 125) to 10 % more (lead-periodic friction, asymmetry).
