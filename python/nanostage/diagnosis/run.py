@@ -849,7 +849,7 @@ def signature_comparison(
     else:
         picked = [r for r in first_round if r.shrink > 0.0][:top]
     models += [("candidate", r.effect, r.fit.system) for r in picked]
-    rows = []
+    rows: list[dict[str, Any]] = []
     for kind, effect, system in models:
         try:
             sig = judge.simulated(system)

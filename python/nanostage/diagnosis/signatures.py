@@ -313,11 +313,12 @@ def _breakaway_feature(rows: Sequence[tuple[int, float, float]], cq: float) -> d
         ys.extend(arr[:, 1] - arr[:, 1].mean())
     if distinct < 3:
         return {}
-    x, y = np.asarray(xs), np.asarray(ys)
-    slope = float(np.dot(x, y) / np.dot(x, x))
-    dof = max(x.size - 1 - sum(1 for p in groups.values() if len(p) > 1), 1)
-    s2 = float(np.sum((y - slope * x) ** 2)) / dof
-    se = math.sqrt(s2 / float(np.dot(x, x)))
+    xv = np.asarray(xs, dtype=np.float64)
+    yv = np.asarray(ys, dtype=np.float64)
+    slope = float(np.dot(xv, yv) / np.dot(xv, xv))
+    dof = max(xv.size - 1 - sum(1 for p in groups.values() if len(p) > 1), 1)
+    s2 = float(np.sum((yv - slope * xv) ** 2)) / dof
+    se = math.sqrt(s2 / float(np.dot(xv, xv)))
     return {"breakaway_per_decade_v": Feature(slope, max(se, cq))}
 
 
