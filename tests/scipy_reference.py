@@ -75,6 +75,10 @@ __all__ = [
     "slip_rhs",
 ]
 
+#: Fields of the core's parameters that this reference does not model: accepted at 0 only
+#: (the table's Dahl law is symmetric here).
+ZERO_ONLY_FIELDS: dict[str, tuple[str, ...]] = {"dahl": ("asymmetry",)}
+
 PARAM_FIELDS: dict[str, tuple[str, ...]] = {
     "motor": (
         "resistance_ohm",
@@ -173,9 +177,14 @@ def _plant_from_params(params: dict) -> _Plant:
         missing = [f for f in fields if f not in got]
         if missing:
             raise KeyError(f"params[{block!r}] is missing {missing}")
-        unknown = [f for f in got if f not in fields]
+        unknown = [f for f in got if f not in fields and f not in ZERO_ONLY_FIELDS.get(block, ())]
         if unknown:
             raise ValueError(f"params[{block!r}] has unknown fields {unknown}")
+        nonzero = [f for f in ZERO_ONLY_FIELDS.get(block, ()) if float(got.get(f, 0.0)) != 0.0]
+        if nonzero:
+            raise ValueError(
+                f"params[{block!r}]: {nonzero} not 0; the reference models them only at 0"
+            )
     mo, fr, gh, sc, tb, dl = (params[b] for b in PARAM_FIELDS)
     quasi = bool(mo["quasi_static_current"])
     R = float(mo["resistance_ohm"])

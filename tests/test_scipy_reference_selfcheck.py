@@ -391,3 +391,22 @@ def test_output_layout():
     np.testing.assert_array_equal(res["time_s"], np.arange(4) * T)
     assert res["stuck"][0] and res["position_m"][0] == 0.0
     assert int(res["n_rhs"]) > 0
+
+
+def test_the_reference_takes_a_dahl_asymmetry_only_at_zero() -> None:
+    """The core's Dahl law has a direction asymmetry this reference does not model: a 0 is
+    accepted (the same symmetric law), anything else refused, as is an unknown field."""
+    p = seed_like_params()
+    p["dahl"]["asymmetry"] = 0.0
+    zero = simulate_plant_scipy(p, np.full(5, 0.1), 1e-3)
+    assert np.array_equal(
+        zero["position_m"],
+        simulate_plant_scipy(seed_like_params(), np.full(5, 0.1), 1e-3)["position_m"],
+    )
+    p["dahl"]["asymmetry"] = 0.2
+    with pytest.raises(ValueError, match=r"\['asymmetry'\] not 0"):
+        simulate_plant_scipy(p, np.full(5, 0.1), 1e-3)
+    p = seed_like_params()
+    p["dahl"]["shape"] = 1.0
+    with pytest.raises(ValueError, match="unknown fields"):
+        simulate_plant_scipy(p, np.full(5, 0.1), 1e-3)
