@@ -50,3 +50,15 @@ def test_settings_wording(bad: object) -> None:
     expected = f"CampaignSettings.n_trials = {bad!r} is invalid: expected an integer in [1, "
     assert str(info.value).startswith(expected)
     assert CampaignSettings(n_trials=3).n_trials == 3
+
+
+def test_executor_arg_takes_none_or_anything_with_submit() -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    from nanostage.checks import executor_arg
+
+    executor_arg(None)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        executor_arg(pool)
+    with pytest.raises(TypeError, match=r"^executor must have a submit method .* not dict$"):
+        executor_arg({})

@@ -42,7 +42,7 @@ import numpy.typing as npt
 
 from . import _core, iso230_2
 from ._core import ConfigError
-from .checks import int_arg
+from .checks import executor_arg, int_arg
 from .config import System
 from .cycles import Cycle
 from .measurement import MeasurementChain, arrival_times
@@ -600,11 +600,7 @@ def run_campaign(
         chunk = int_arg("chunk_trials", chunk_trials, 1, n)
     if cycle.n_measurements == 0:
         raise ConfigError("cycle is invalid: it has no measurement instants")
-    if executor is not None and not callable(getattr(executor, "submit", None)):
-        raise TypeError(
-            f"executor must have a submit method (concurrent.futures.Executor or a "
-            f"dask.distributed.Client), not {type(executor).__name__}"
-        )
+    executor_arg(executor)
     if measurement is not None and not isinstance(measurement, MeasurementChain):
         raise ConfigError(
             f"measurement = {measurement!r} is invalid: expected a "

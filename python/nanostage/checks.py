@@ -7,7 +7,7 @@ from typing import Literal
 
 from ._core import ConfigError
 
-__all__ = ["int_arg"]
+__all__ = ["executor_arg", "int_arg"]
 
 
 def int_arg(
@@ -56,3 +56,14 @@ def int_arg(
             raise ConfigError(f"{name} = {shown} is outside [{lo}, {hi}]")
         raise ConfigError(f"{name} = {shown} is invalid: expected an integer in [{lo}, {hi}]")
     return v
+
+
+def executor_arg(executor: object) -> None:
+    """Check an ``executor=`` argument before any work: None, or anything with a callable
+    ``submit`` (a :class:`concurrent.futures.Executor`, a ``dask.distributed.Client``);
+    else ``TypeError`` naming its type."""
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError(
+            f"executor must have a submit method (concurrent.futures.Executor or a "
+            f"dask.distributed.Client), not {type(executor).__name__}"
+        )

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..checks import executor_arg
 from ..config import System
 from ..experiment import Experiment
 from .candidates import Candidate, Param, applicable_candidates
@@ -292,11 +293,7 @@ def diagnose_experiments(
     has its own cache)."""
     st = settings or DiagnosisSettings()
     t_start = time.perf_counter()
-    if executor is not None and not callable(getattr(executor, "submit", None)):
-        raise TypeError(
-            f"executor must have a submit method (concurrent.futures.Executor or a "
-            f"dask.distributed.Client), not {type(executor).__name__}"
-        )
+    executor_arg(executor)
     if not st.simulation_cache_mb >= 0.0:
         raise ValueError(
             f"DiagnosisSettings.simulation_cache_mb = {st.simulation_cache_mb!r}: must be ≥ 0 "
