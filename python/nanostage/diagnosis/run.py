@@ -798,7 +798,7 @@ def assemble_report(
         ],
         "timing_s": out["timing_s"],
         "simulations": dict(out["simulations"]),
-        "signatures": signature_comparison(out, folds, adapt, first),
+        "signatures": signature_comparison(out, first),
     }
 
 
@@ -808,8 +808,6 @@ def _features(sig: Mapping[str, Feature]) -> dict[str, dict[str, Any]]:
 
 def signature_comparison(
     out: Mapping[str, Any],
-    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
-    adapt: Any,
     first_round: Sequence[CandidateResult],
     top: int = 3,
 ) -> dict[str, Any] | None:
@@ -821,21 +819,9 @@ def signature_comparison(
     tell from it; with nothing selected, the best ``top`` partial explanations), each with
     its χ² distance from the measured one and the features it misses by more than three
     standard errors (:func:`~nanostage.diagnosis.signatures.misses`). None when the traces
-    have no signature feature. The judge is the engine's (``out["signature_judge"]``) when
-    it has one."""
-    judge: SignatureJudge | None = out.get("signature_judge")
-    if judge is None:
-        nominal = out["nominal"].system
-        seen: dict[str, Experiment] = {}
-        for e in [*folds[0][0], *folds[0][1]]:
-            seen.setdefault(e.name, e)
-        judge = SignatureJudge(
-            list(seen.values()),
-            adapt,
-            nominal.encoder.count_m,
-            nominal.sample_period_s,
-            out.get("cache"),
-        )
+    have no signature feature. The judge is the engine's (``out["signature_judge"]``): the
+    same measured signature, simulations and cache as its tie-breaks."""
+    judge: SignatureJudge = out["signature_judge"]
     if not judge.measured:
         return None
     selected = list(out["selected"])
