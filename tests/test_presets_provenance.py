@@ -93,3 +93,16 @@ def test_an_unknown_preset_is_an_error_naming_it_and_the_presets(name: Any, mess
     text = str(err.value)
     assert text == message + ", ".join(presets.preset_names())
     assert isinstance(err.value, ValueError)
+
+
+def test_check_preset_name_names_the_label_the_nearest_and_every_preset() -> None:
+    from nanostage.presets import check_preset_name, preset_names
+
+    for name in preset_names():
+        check_preset_name(name)
+    with pytest.raises(nanostage.ConfigError) as err:
+        check_preset_name("sed", "--preset")
+    assert str(err.value) == (
+        "--preset 'sed' is unknown (did you mean 'seed'?); the presets are: "
+        + ", ".join(preset_names())
+    )

@@ -141,17 +141,11 @@ def _load_model_option(args: argparse.Namespace) -> Any:
 
 def _preset_option(name: str, label: str) -> Any:
     """The System of the preset ``name`` given as ``label`` (the option or argument as the
-    user typed it: ``--preset``, ``preset``); an unknown name is a ValueError naming it, the
-    nearest preset and every preset."""
-    from .config import did_you_mean
-    from .presets import preset_names, preset_system
+    user typed it: ``--preset``, ``preset``); an unknown name is a ConfigError naming it, the
+    nearest preset and every preset (:func:`nanostage.presets.check_preset_name`)."""
+    from .presets import check_preset_name, preset_system
 
-    names = preset_names()
-    if name not in names:
-        raise ValueError(
-            f"{label} {name!r} is unknown{did_you_mean(name, names)}; the presets are: "
-            f"{', '.join(names)}"
-        )
+    check_preset_name(name, label)
     return preset_system(name)
 
 

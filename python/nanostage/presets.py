@@ -30,6 +30,7 @@ __all__ = [
     "PRESET_TRAVEL_M",
     "SEED_PROVENANCE",
     "Provenance",
+    "check_preset_name",
     "preset_names",
     "preset_provenance",
     "preset_system",
@@ -342,6 +343,18 @@ def preset_system(name: str) -> System:
     return PRESETS[name]()
 
 
+def check_preset_name(name: object, label: str = "preset") -> None:
+    """Raise :class:`nanostage.ConfigError` unless ``name`` is a preset's name; the message
+    names it as ``label`` (e.g. ``--preset``), the nearest preset and every preset."""
+    if isinstance(name, str) and name in _PRESET_SOURCES:
+        return
+    names = tuple(_PRESET_SOURCES)
+    hint = did_you_mean(name, names) if isinstance(name, str) else ""
+    raise _core.ConfigError(
+        f"{label} {name!r} is unknown{hint}; the presets are: {', '.join(names)}"
+    )
+
+
 def preset_provenance(name: str) -> dict[str, Any]:
     """Where the preset ``name`` comes from: the ``[provenance]`` table of the shipped model
     file it is read from, whole (its ``source``, and for the seed Table 1's gains
@@ -367,13 +380,8 @@ def preset_provenance(name: str) -> dict[str, Any]:
     >>> prov["preset_file"]
     'nanostage/model_files/emps.model.toml'
     """
-    preset = _PRESET_SOURCES.get(name) if isinstance(name, str) else None
-    if preset is None:
-        names = tuple(_PRESET_SOURCES)
-        hint = did_you_mean(name, names) if isinstance(name, str) else ""
-        raise _core.ConfigError(
-            f"preset {name!r} is unknown{hint}; the presets are: {', '.join(names)}"
-        )
+    check_preset_name(name)
+    preset = _PRESET_SOURCES[name]
     return {
         **copy.deepcopy(dict(_document(preset.file).provenance)),
         "preset_file": _file_label(preset.file),
