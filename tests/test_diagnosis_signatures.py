@@ -147,23 +147,45 @@ def test_signatures_narrow_a_tie_and_change_nothing_else() -> None:
     b = _result("b", 1.02e-7, [1.1e-14, 1.0e-14, 1.0e-14], occam=-1.0)
     results = [a, b]
     assert pick_winner(results, st) is b  # today's rule: the Occam factor
-    five = 5  # features in the χ²
 
     def chi(table: dict[str, float]) -> object:
-        return lambda r: (table[r.effect], five)
+        return lambda tied: [(table[r.effect], 5) for r in tied]
 
     assert pick_winner(results, st, chi({"a": 0.0, "b": 0.0}), 4.0) is b  # equal: same
     assert pick_winner(results, st, chi({"a": 1.0, "b": 30.0}), 4.0) is a
     assert pick_winner(results, st, chi({"a": 1.0, "b": 30.0}), 0.0) is b  # margin 0: off
     assert pick_winner(results, st, chi({"a": 1.0, "b": 4.5}), 4.0) is b  # within margin
-    # The closest model itself misses the features (χ² 50 over 5 features: the errors
-    # understate the mismatch tenfold in variance): the margin scales by 10, and a χ² of
-    # 80 is no longer a clear mark against it; 100 is.
-    assert pick_winner(results, st, chi({"a": 50.0, "b": 80.0}), 4.0) is b
-    assert pick_winner(results, st, chi({"a": 50.0, "b": 100.0}), 4.0) is a
     no_occam = dataclasses.replace(st, occam_tie_break=False)
     assert pick_winner(results, no_occam) is a
     assert pick_winner(results, no_occam, chi({"a": 30.0, "b": 1.0}), 4.0) is b
+
+
+def test_tie_chi_squares_scale_each_feature_by_its_closest_miss() -> None:
+    from nanostage.diagnosis.signatures import tie_chi_squares
+
+    measured = {
+        "ramp_level_v": Feature(0.30, 0.001),
+        "hunting_fraction": Feature(0.5, 0.1),
+        "rest_command_mean_v": Feature(0.0, 0.01),
+    }
+    # Both models miss the ramp level by tens of errors (a shared friction-law mismatch);
+    # only "a" reproduces the hunting; "b" has no rest feature.
+    a = {
+        "ramp_level_v": Feature(0.33, 0.0),
+        "hunting_fraction": Feature(0.45, 0.0),
+        "rest_command_mean_v": Feature(0.02, 0.0),
+    }
+    b = {"ramp_level_v": Feature(0.36, 0.0), "hunting_fraction": Feature(0.0, 0.0)}
+    (xa, na), (xb, nb) = tie_chi_squares(measured, [a, b])
+    # ramp level: terms 900 and 3600, the closest 900 → 1 and 4; hunting: 0.25 and 25,
+    # the closest within its errors → unscaled; rest: 4 (only a has it) → 4/4 = 1.
+    assert (na, nb) == (3, 2)
+    assert xa == pytest.approx(1.0 + 0.25 + 1.0)
+    assert xb == pytest.approx(4.0 + 25.0)
+    # A plain χ² would have ranked them by the shared ramp miss alone (904 vs 3625), and
+    # one Birge ratio for all (904/3 ≈ 301 per feature) would have buried the hunting:
+    # (3625 − 904)/301 ≈ 9, at the margin; per feature it is 29 − 2.25, a clear mark.
+    assert tie_chi_squares(measured, [a])[0][0] == pytest.approx(2.25)
 
 
 def test_judge_gives_the_generating_model_distance_zero_and_an_offset_force_more() -> None:

@@ -338,10 +338,11 @@ def diagnose_experiments(
     )
     signature_distances: list[dict[str, float]] = []
 
-    def signature_chi_square(r: CandidateResult) -> tuple[float, int]:
-        chi2, n = judge.chi_square(r.fit.system)
-        signature_distances[-1][r.effect] = chi2
-        return chi2, n
+    def signature_chi_squares(tied: Sequence[CandidateResult]) -> list[tuple[float, int]]:
+        out = judge.tie_chi_squares([r.fit.system for r in tied])
+        for r, (chi2, _) in zip(tied, out, strict=True):
+            signature_distances[-1][r.effect] = chi2
+        return out
 
     print_progress(
         f"diagnosis: calibrating the nominal model ({len(free)} free parameters, "
@@ -468,7 +469,7 @@ def diagnose_experiments(
         if rnd == 0:
             pool_names = [r.effect for r in results]
         signature_distances.append({})
-        best = pick_winner(results, st, signature_chi_square, st.signature_margin)
+        best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         while best is not None and best.effect in held:
             # A selected effect is fitted with the free parameters too: a winner known from
             # its held screening only is refitted from all starts, and the round picks
@@ -479,7 +480,7 @@ def diagnose_experiments(
             )
             held.discard(best.effect)
             results.sort(key=lambda r: r.validation_rms_m)
-            best = pick_winner(results, st, signature_chi_square, st.signature_margin)
+            best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         if best is None:
             break
         selected.append(best.effect)

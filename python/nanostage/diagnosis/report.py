@@ -522,8 +522,9 @@ def _tie_signatures(report: Mapping[str, Any], effect: str) -> str:
         f"`{_md_escape(str(k))}` {float(v):.3g}" for k, v in sorted(d.items(), key=lambda kv: kv[1])
     )
     return (
-        f"; signature χ² against the measured marks: {parts} (those within "
-        "`signature_margin` of the smallest stay in the tie)"
+        f"; signature χ² against the measured marks: {parts} (each mark in units of the "
+        "closest tied model's miss of it; those within `signature_margin` of the smallest "
+        "stay in the tie)"
     )
 
 

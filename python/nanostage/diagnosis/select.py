@@ -160,7 +160,9 @@ def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> flo
 def pick_winner(
     results: Sequence[CandidateResult],
     st: DiagnosisSettings,
-    signature_chi_square: Callable[[CandidateResult], tuple[float, int]] | None = None,
+    signature_chi_squares: (
+        Callable[[Sequence[CandidateResult]], Sequence[tuple[float, int]]] | None
+    ) = None,
     signature_margin: float = 0.0,
 ) -> CandidateResult | None:
     """The candidate a round selects from its results (best validation gap first): the
@@ -168,26 +170,22 @@ def pick_winner(
     significant candidates the data cannot tell from it, the one with the largest Occam
     factor (the first in gap order when equal). None when nothing is significant.
 
-    With ``signature_chi_square`` (a candidate → the χ² of its fitted model's simulated
-    signature against the measured one and the number of features in it,
-    :mod:`~nanostage.diagnosis.signatures`) and ``signature_margin`` > 0, the tied
-    candidates are first narrowed to those whose χ² lies within ``signature_margin`` of the
-    closest one, the margin scaled by the closest one's χ² per feature where that exceeds 1
-    (the features' errors then understate how well any of these models can match them: the
-    Birge ratio). What the gap cannot tell apart, the traces' limit cycles, rest commands,
-    ramp commands and breakaways may. Without them, or with one tied candidate, the choice
-    is as above."""
+    With ``signature_chi_squares`` (the tied candidates → the χ² of each fitted model's
+    simulated signature against the measured one and the number of features in it,
+    :func:`~nanostage.diagnosis.signatures.tie_chi_squares`: each feature in units of the
+    closest tied model's miss of it where that exceeds its errors) and
+    ``signature_margin`` > 0, the tied candidates are first narrowed to those whose χ² lies
+    within ``signature_margin`` of the closest one. What the gap cannot tell apart, the
+    traces' limit cycles, rest commands, ramp commands and breakaways may. Without them,
+    or with one tied candidate, the choice is as above."""
     best = next((r for r in results if r.significant), None)
     if best is None:
         return None
     tied = [r for r in results if r.significant and (r is best or indistinguishable(best, r))]
-    if signature_chi_square is not None and signature_margin > 0.0 and len(tied) > 1:
-        d = [signature_chi_square(r) for r in tied]
-        closest, n = min(d, key=lambda x: x[0])
-        scale = max(1.0, closest / n) if n > 0 else 1.0
-        tied = [
-            r for r, (x, _) in zip(tied, d, strict=True) if x <= closest + signature_margin * scale
-        ]
+    if signature_chi_squares is not None and signature_margin > 0.0 and len(tied) > 1:
+        d = [x for x, _ in signature_chi_squares(tied)]
+        closest = min(d)
+        tied = [r for r, x in zip(tied, d, strict=True) if x <= closest + signature_margin]
     if not st.occam_tie_break:
         return tied[0]
     # The largest Occam factor is the least complexity (the first in gap order when equal).

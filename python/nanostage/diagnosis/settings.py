@@ -93,11 +93,12 @@ class DiagnosisSettings:
     #: Narrow a tie by the traces' signatures first (:mod:`~nanostage.diagnosis.signatures`:
     #: limit cycles in holds, the command at rest and on ramps per direction, breakaway
     #: against rest): the tied candidates whose simulated signature lies within this χ² of
-    #: the closest one to the measured stay (scaled by the closest one's χ² per feature
-    #: where that exceeds 1, :func:`~nanostage.diagnosis.select.pick_winner`), and the Occam
-    #: factor decides among them. The default 9.21 = 2·ln 100, a likelihood ratio of 100
-    #: ("decisive" on Jeffreys' scale): a tie the gap cannot break is broken only by a
-    #: clear mark. 0 turns it off.
+    #: the closest one to the measured stay, and the Occam factor decides among them. Each
+    #: feature counts in units of the closest tied model's miss of it where that exceeds
+    #: its errors (:func:`~nanostage.diagnosis.signatures.tie_chi_squares`): a mark every
+    #: model misses alike is a shared model error, not a difference between them. The
+    #: default 9.21 = 2·ln 100, a likelihood ratio of 100 ("decisive" on Jeffreys' scale):
+    #: a tie the gap cannot break is broken only by a clear mark. 0 turns it off.
     signature_margin: float = 9.21
     #: Significant candidates of a round whose free values restart the model before
     #: (refitting alone), the best first; None: every significant one, ≤ 0: none. With the

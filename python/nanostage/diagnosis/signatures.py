@@ -67,6 +67,7 @@ __all__ = [
     "distance",
     "misses",
     "signatures_of",
+    "tie_chi_squares",
 ]
 
 #: Unit of every signature feature.
@@ -403,6 +404,47 @@ class SignatureJudge:
     def chi_square(self, system: System) -> tuple[float, int]:
         """:func:`chi_square` of ``system``'s simulated signature against the measured."""
         return chi_square(self.measured, self.simulated(system))
+
+    def tie_chi_squares(self, systems: Sequence[System]) -> list[tuple[float, int]]:
+        """:func:`tie_chi_squares` of the tied ``systems``' simulated signatures."""
+        return tie_chi_squares(self.measured, [self.simulated(s) for s in systems])
+
+
+def tie_chi_squares(
+    measured: Mapping[str, Feature], simulated: Sequence[Mapping[str, Feature]]
+) -> list[tuple[float, int]]:
+    """The χ² of each of several models' simulated signatures against the measured one, for
+    a tie between them, and the number of features each sums over: each feature's term
+    ``(measured − simulated)² / (se_measured² + se_simulated²)`` divided by the smallest
+    term any of the models reaches on that feature where that exceeds 1.
+
+    A mark that every one of the models misses by many standard errors is a mismatch the
+    models share (a friction law of another shape than the truth's moves every model's
+    ramp command alike): its errors understate how well any of them can match it, by the
+    closest one's ratio (the Birge ratio, taken per feature). Scaled so, such a mark adds
+    about 1 to the closest model and its ratio of misses to the others, while a mark that
+    one model reproduces within its errors and another misses keeps its full weight. One
+    ratio for all the features (the closest model's χ² per feature) would let a shared
+    miss of a millivolt-precise ramp level drown a limit cycle that tells the models apart.
+    """
+    terms: list[dict[str, float]] = []
+    for sim in simulated:
+        row: dict[str, float] = {}
+        for name, m in measured.items():
+            s = sim.get(name)
+            if s is None:
+                continue
+            var = m.std_error**2 + s.std_error**2
+            if var > 0.0 and math.isfinite(var):
+                row[name] = (m.value - s.value) ** 2 / var
+        terms.append(row)
+    ratio: dict[str, float] = {}
+    for row in terms:
+        for name, z2 in row.items():
+            ratio[name] = min(ratio.get(name, math.inf), z2)
+    return [
+        (sum(z2 / max(1.0, ratio[name]) for name, z2 in row.items()), len(row)) for row in terms
+    ]
 
 
 def misses(
