@@ -333,17 +333,24 @@ def chi_square(
     measured: Mapping[str, Feature], simulated: Mapping[str, Feature]
 ) -> tuple[float, int]:
     """:func:`distance` and the number of features it sums over."""
-    total = 0.0
-    n = 0
+    terms = _chi_square_terms(measured, simulated)
+    return sum(terms.values(), 0.0), len(terms)
+
+
+def _chi_square_terms(
+    measured: Mapping[str, Feature], simulated: Mapping[str, Feature]
+) -> dict[str, float]:
+    """Each feature's χ² term ``(measured − simulated)² / (se_measured² + se_simulated²)``,
+    for the features both have (with a finite, positive combined variance)."""
+    out: dict[str, float] = {}
     for name, m in measured.items():
         s = simulated.get(name)
         if s is None:
             continue
         var = m.std_error**2 + s.std_error**2
         if var > 0.0 and math.isfinite(var):
-            total += (m.value - s.value) ** 2 / var
-            n += 1
-    return total, n
+            out[name] = (m.value - s.value) ** 2 / var
+    return out
 
 
 class SignatureJudge:
@@ -427,17 +434,7 @@ def tie_chi_squares(
     ratio for all the features (the closest model's χ² per feature) would let a shared
     miss of a millivolt-precise ramp level drown a limit cycle that tells the models apart.
     """
-    terms: list[dict[str, float]] = []
-    for sim in simulated:
-        row: dict[str, float] = {}
-        for name, m in measured.items():
-            s = sim.get(name)
-            if s is None:
-                continue
-            var = m.std_error**2 + s.std_error**2
-            if var > 0.0 and math.isfinite(var):
-                row[name] = (m.value - s.value) ** 2 / var
-        terms.append(row)
+    terms = [_chi_square_terms(measured, sim) for sim in simulated]
     ratio: dict[str, float] = {}
     for row in terms:
         for name, z2 in row.items():
