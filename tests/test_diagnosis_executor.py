@@ -190,3 +190,67 @@ def test_diagnose_passes_its_executor_to_the_candidate_fits(case: Path) -> None:
         ).report
     assert essence(remote_report) == essence(local_report)
     assert local_report["selected"][:1] == ["asymmetric_friction"]
+
+
+def test_cli_diagnose_spreads_the_fits_over_workers_or_a_scheduler(
+    case: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``nanostage diagnose --workers N`` fits the candidates in N spawned processes and
+    ``--scheduler ADDRESS`` on a Dask cluster: the same report as a local run (the fast
+    settings patched in; the executor is what the CLI made, closed after)."""
+    pytest.importorskip("cloudpickle")
+    from nanostage import cli
+    from nanostage.diagnosis import run
+
+    real = run.diagnose
+    seen: list[Any] = []
+
+    def fast(manifest: Any, out_dir: Any, **kw: Any) -> Any:
+        seen.append(kw["executor"])
+        return real(manifest, out_dir, **{**kw, "settings": FAST})
+
+    monkeypatch.setattr(run, "diagnose", fast)
+
+    def essence(out: Path) -> Any:
+        import json
+
+        r = json.loads((out / "report.json").read_text(encoding="utf-8"))
+        return (
+            r["selected"],
+            r["gap_after"]["total_rms_m"],
+            [(c["effect"], c["validation_rms_m"]) for c in r["candidates"]],
+        )
+
+    base = ["diagnose", str(case), "--quiet", "--no-plot", "--out"]
+    assert cli.main([*base, str(tmp_path / "local")]) == 0
+    assert cli.main([*base, str(tmp_path / "pool"), "--workers", "2"]) == 0
+    pool = seen[1]
+    assert isinstance(pool, ProcessPoolExecutor)
+    assert pool._mp_context.get_start_method() == "spawn"
+    with pytest.raises(RuntimeError):  # shut down when the command ends
+        pool.submit(int)
+    assert essence(tmp_path / "pool") == essence(tmp_path / "local")
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None
+    ) as cluster:
+        address = cluster.scheduler_address
+        assert cli.main([*base, str(tmp_path / "dask"), "--scheduler", address]) == 0
+    assert isinstance(seen[2], distributed.Client)
+    assert essence(tmp_path / "dask") == essence(tmp_path / "local")
+
+
+def test_cli_diagnose_workers_out_of_range_is_named_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bad --workers is an error naming the option, the value and the range, before the
+    manifest (here: none) is read."""
+    from nanostage import cli
+
+    missing = str(tmp_path / "absent.toml")
+    assert cli.main(["diagnose", missing, "--workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--workers = 0 is invalid: expected an integer in [1, 256]" in err
+    assert "absent.toml" not in err
+    assert cli.main(["diagnose", missing, "--workers", "2", "--scheduler", "tcp://h:1"]) == 2
+    assert "not allowed with argument --workers" in capsys.readouterr().err

@@ -27,7 +27,7 @@ from types import FrameType
 from typing import Any, Final, NoReturn, cast
 
 from . import iso230_2
-from ._core import SimulationError, __version__
+from ._core import ConfigError, SimulationError, __version__
 from .output import check_output_dir, staged_output
 
 #: Exit codes.
@@ -269,16 +269,64 @@ def _trace_limits(args: argparse.Namespace, *, prediction: bool = False) -> Any:
     return TraceLimits(**given)
 
 
+#: Most worker processes ``nanostage diagnose --workers`` starts.
+MAX_DIAGNOSIS_WORKERS: Final = 256
+
+
+def _check_workers(workers: int | None) -> None:
+    """``diagnose --workers``: None, or an integer in [1, MAX_DIAGNOSIS_WORKERS]."""
+    if workers is not None and (
+        isinstance(workers, bool) or not 1 <= workers <= MAX_DIAGNOSIS_WORKERS
+    ):
+        raise ConfigError(
+            f"--workers = {workers!r} is invalid: expected an integer in "
+            f"[1, {MAX_DIAGNOSIS_WORKERS}] (worker processes for the candidate fits)"
+        )
+
+
+@contextmanager
+def _diagnosis_executor(workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """The executor of ``diagnose --workers N`` (a pool of N spawned processes: a forked
+    child of a process whose core has started its threads can wait for ever on a lock) or
+    ``--scheduler ADDRESS`` (a Dask client of that scheduler), or None; closed after."""
+    _check_workers(workers)
+    if workers is not None:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+            yield ex
+    elif scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise ConfigError(
+                f'--scheduler {scheduler!r} needs dask.distributed: pip install "nanostage[dask]"'
+            ) from None
+        with Client(scheduler) as client:  # type: ignore[no-untyped-call]
+            yield client
+    else:
+        yield None
+
+
 def _diagnose(args: argparse.Namespace) -> int:
     from .diagnosis.manifest import load_manifest
     from .diagnosis.run import diagnose
 
+    _check_workers(args.workers)
     model = _load_model_option(args)
     check_output_dir(args.out)
     manifest = load_manifest(
         args.manifest, trace_root=args.trace_root, limits=_trace_limits(args), model=model
     )
-    d = diagnose(manifest, args.out, progress=not args.quiet, figures=not args.no_plot)
+    with _diagnosis_executor(args.workers, args.scheduler) as executor:
+        d = diagnose(
+            manifest,
+            args.out,
+            progress=not args.quiet,
+            figures=not args.no_plot,
+            executor=executor,
+        )
     r = d.report
     before, after = r["gap_before"]["total_rms_m"], r["gap_after"]["total_rms_m"]
     print(
@@ -622,6 +670,22 @@ def _build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--no-plot", action="store_true", help="skip the figures")
     dg.add_argument("--quiet", action="store_true", help="no progress on stderr")
     _add_input_options(dg)
+    where = dg.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=_integer,
+        default=None,
+        metavar="N",
+        help="fit each round's candidates in N spawned worker processes (default: two "
+        "threads in this process); the report is the same to the last bit",
+    )
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="fit each round's candidates on a Dask cluster, e.g. tcp://host:8786 (needs "
+        'pip install "nanostage[dask]"); the report is the same to the last bit',
+    )
     dg.set_defaults(func=_diagnose)
     bm = sub.add_parser(
         "diagnose-benchmark", help="blind check of the diagnosis on synthetic hidden effects"
