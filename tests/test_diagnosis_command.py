@@ -389,3 +389,31 @@ def test_benchmark_on_the_independent_family_writes_its_scores(
     assert "truth's own deterministic model" not in md
     truth = (tmp_path / "bench" / "case00_offset_force" / "truth.json").read_text()
     assert '"family": "independent"' in truth
+
+
+def test_advice_names_validation_at_positions_training_never_covered() -> None:
+    """The independent family's design starts every experiment at its own position (2.2 mm
+    apart), so no validation sample lies where a training experiment ran: a friction that
+    varies irregularly with position cannot be judged, and the advice says so. Validating
+    on repeats of training moves at the same positions covers them all."""
+    from nanostage.diagnosis import independent_truth as it
+    from nanostage.diagnosis.run import position_coverage
+
+    def exp(d: Any) -> Experiment:
+        t = np.arange(d.reference_m.size) * 1e-3
+        pos = np.round(d.reference_m / Q) * Q
+        return Experiment(name=d.name, time_s=t, reference_m=d.reference_m, position_m=pos)
+
+    design = it.experiment_design()
+    train = [exp(d) for d in design if d.role == "train"]
+    val = [exp(d) for d in design if d.role == "validate"]
+    assert position_coverage([(train, val)]) == 0.0
+    advice = experiment_advice(train + val, 2e-3, [], 0.05, [(train, val)])
+    hit = [a for a in advice if a["effects"] == ["position_random_friction"]]
+    assert len(hit) == 1 and hit[0]["issue"].startswith("only 0% of the validation")
+    # The validation experiments repeated at their training twins' positions: all covered.
+    twins = [dc.replace(e, name=e.name + "_again") for e in train[:4]]
+    assert position_coverage([(train, twins)]) == 1.0
+    again = experiment_advice(train + twins, 2e-3, [], 0.05, [(train, twins)])
+    assert not [a for a in again if a["effects"] == ["position_random_friction"]]
+    assert position_coverage([(train, [])]) is None

@@ -185,13 +185,45 @@ def best_single(
     return first_round[0] if first_round else None
 
 
+#: Below this share of the validation experiments' reference samples inside the positions
+#: their training experiments covered, a friction that varies irregularly with position
+#: cannot be judged (:func:`experiment_advice`).
+MIN_POSITION_COVERAGE = 0.5
+
+
+def position_coverage(
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
+) -> float | None:
+    """The share of the validation experiments' reference samples (all folds) that lie
+    within the position range, widened by one reading quantum, of some training experiment
+    of their fold; None without validation samples."""
+    inside = total = 0
+    for train, validate in folds:
+        spans = []
+        for e in train:
+            ref = np.asarray(e.reference_m, dtype=np.float64)
+            q = reading_quantum(e.position_m)
+            spans.append((float(np.min(ref)) - q, float(np.max(ref)) + q))
+        for e in validate:
+            ref = np.asarray(e.reference_m, dtype=np.float64)
+            hit = np.zeros(ref.size, dtype=bool)
+            for lo, hi in spans:
+                hit |= (ref >= lo) & (ref <= hi)
+            inside += int(np.count_nonzero(hit))
+            total += ref.size
+    return inside / total if total else None
+
+
 def experiment_advice(
     experiments: Sequence[Experiment],
     lead_m: float | None,
     results: Sequence[CandidateResult],
     penalty: float,
+    folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]] | None = None,
 ) -> list[dict[str, Any]]:
-    """What the experiments cannot reveal, and which experiment would."""
+    """What the experiments cannot reveal, and which experiment would. With ``folds``, also
+    whether the validation experiments revisit positions their training experiments
+    covered (:func:`position_coverage`)."""
     advice: list[dict[str, Any]] = []
     moves = [m for e in experiments for m in _moves(e)]
     signs = {math.copysign(1.0, m[2]) for m in moves if m[2] != 0}
@@ -233,6 +265,21 @@ def experiment_advice(
             }
         )
     del span
+    coverage = position_coverage(folds) if folds else None
+    if coverage is not None and coverage < MIN_POSITION_COVERAGE:
+        advice.append(
+            {
+                "effects": ["position_random_friction"],
+                "issue": f"only {coverage:.0%} of the validation experiments' samples lie at "
+                "positions a training experiment covered: a friction that varies irregularly "
+                "along the travel can be fitted where the training experiments ran but not "
+                "predicted elsewhere, so it cannot be judged (a screw-lead periodic friction "
+                "can)",
+                "experiment": "repeat moves at the positions of other experiments (a "
+                "training and a validation experiment over the same stretch of travel), "
+                "wherever position-dependent friction matters",
+            }
+        )
     refs: dict[tuple[int, int], int] = {}
     for e in experiments:
         travel_nm = round(float(np.sum(np.abs(np.diff(e.reference_m)))) * 1e9)
@@ -786,7 +833,9 @@ def assemble_report(
             for i, rnd in enumerate(rounds)
         ],
         "evidence": evidence,
-        "advice": experiment_advice(val + [e for t, _ in folds for e in t], lead_m, first, penalty),
+        "advice": experiment_advice(
+            val + [e for t, _ in folds for e in t], lead_m, first, penalty, folds
+        ),
         "skipped": dict(out["skipped"]),
         "refit_control": list(out.get("refit_control", [])),
         "nominal_parameters": _free_parameters(out["nominal"], out["nominal"]),
