@@ -288,8 +288,8 @@ def _check_workers(workers: int | None) -> None:
 def _diagnosis_executor(workers: int | None, scheduler: str | None) -> Iterator[Any]:
     """The executor of ``diagnose --workers N`` (a pool of N spawned processes: a forked
     child of a process whose core has started its threads can wait for ever on a lock) or
-    ``--scheduler ADDRESS`` (a Dask client of that scheduler), or None; closed after."""
-    _check_workers(workers)
+    ``--scheduler ADDRESS`` (a Dask client of that scheduler), or None; closed after.
+    ``workers`` is checked by the caller (:func:`_check_workers`) before any work."""
     if workers is not None:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
