@@ -209,6 +209,20 @@ def test_same_seed_same_traces(tmp_path: Path, hidden: str) -> None:
     assert a[1] == b[1] and a[1] != c[1]
 
 
+def test_spawned_workers_write_the_same_files(tmp_path: Path) -> None:
+    design = _short_design(3)
+    it.write_case("backlash", 11, tmp_path / "one", design=design)
+    it.write_case("backlash", 11, tmp_path / "two", design=design, workers=2)
+    names = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "two").iterdir())
+    for name in names:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes()
+    for bad in (0, 257, 1.5, True):
+        with pytest.raises(ValueError, match="workers"):
+            it.write_case("none", 1, tmp_path / "bad", design=design, workers=bad)  # type: ignore[arg-type]
+    assert not (tmp_path / "bad").exists()
+
+
 def test_written_case_is_read_by_the_diagnosis(tmp_path: Path) -> None:
     manifest, truth = it.write_case("offset_force", 3, tmp_path / "case", design=_short_design(3))
     assert truth["hidden"] == "offset_force" and truth["family"] == "independent"

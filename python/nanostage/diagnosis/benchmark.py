@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import math
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -462,7 +463,8 @@ def run_benchmark(
     (nanostage's own core with its effects, this module's :func:`generate_case`) or
     ``independent`` (:func:`nanostage.diagnosis.independent_truth.write_case`: another
     integrator, other friction laws, effects written from their physics, ``command_v``
-    recorded, a 12-experiment design). The truth's own model and the truth-started check
+    recorded, a 12-experiment design; its experiments are simulated in one spawned process
+    per CPU). The truth's own model and the truth-started check
     exist for the own family only (the independent truth is not a nanostage model).
 
     With ``truth_check`` each case with an effect is also diagnosed with only the candidates
@@ -541,7 +543,9 @@ def _run_benchmark(
         manifest, drawn = (
             generate_case(h, seed * 10_000 + c, case_dir)
             if own
-            else independent_truth.write_case(h, seed * 10_000 + c, case_dir)
+            else independent_truth.write_case(
+                h, seed * 10_000 + c, case_dir, workers=os.cpu_count() or 1
+            )
         )
         t = time.perf_counter()
         # Given settings keep the case's own random seed (the manifest's), as the defaults do.

@@ -40,7 +40,9 @@ from __future__ import annotations
 
 import dataclasses as dc
 import math
+import multiprocessing
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, Final
@@ -651,10 +653,16 @@ def write_case(
     out_dir: str | Path,
     *,
     design: Sequence[DesignedExperiment] | None = None,
+    workers: int = 1,
 ) -> tuple[Path, dict[str, Any]]:
     """Draw a truth, simulate the design and write ``manifest.toml``, one CSV trace per
     experiment (``time_s, reference_m, position_m, command_v``) and ``truth.json`` into
-    ``out_dir``; returns the manifest path and the truth record."""
+    ``out_dir``; returns the manifest path and the truth record.
+
+    ``workers`` > 1 simulates the experiments in that many spawned processes (each
+    experiment has its own random stream, so the files are the same to the last bit)."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
+        raise ValueError(f"workers = {workers!r} is invalid: expected an integer in [1, 256]")
     truth = draw_truth(hidden, seed)
     exps = list(design) if design is not None else experiment_design()
     out = Path(out_dir)
@@ -677,8 +685,14 @@ def write_case(
         for path, (lo, hi) in UNCERTAIN_MOTOR_AND_INERTIA.items()
     }
     lines = case_manifest_head(fc0, ts0, tc0, seed, also_free=also)
-    for i, e in enumerate(exps):
-        tr = simulate_closed_loop(truth, e.reference_m, e.gains, seed * 1000 + i)
+    jobs = [(truth, e.reference_m, e.gains, seed * 1000 + i) for i, e in enumerate(exps)]
+    if workers > 1 and len(jobs) > 1:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
+            traces = list(pool.map(simulate_closed_loop, *zip(*jobs, strict=True)))
+    else:
+        traces = [simulate_closed_loop(*job) for job in jobs]
+    for e, tr in zip(exps, traces, strict=True):
         data = np.column_stack([tr["time_s"], e.reference_m, tr["position_m"], tr["command_v"]])
         np.savetxt(
             out / f"{e.name}.csv",
