@@ -420,6 +420,10 @@ def test_manifest_roles_give_one_fold_and_all_candidates(tmp_path: Path) -> None
     man = load_manifest(root / "m.toml")
     assert man.diagnosis.candidates == EFFECT_NAMES
     assert [(f.train, f.validate) for f in man.splits()] == [(("x",), ("y",))]
+    assert man.diagnosis.level_scatter == 0.0
+    text = (root / "m.toml").read_text().replace('"all"\n', '"all"\nlevel_scatter = 0.02\n')
+    (root / "m.toml").write_text(text)
+    assert load_manifest(root / "m.toml").diagnosis.level_scatter == 0.02
 
 
 def test_manifest_model_file_overrides(tmp_path: Path) -> None:
@@ -452,6 +456,16 @@ EXP = '[[experiment]]\nname = "x"\nfile = "traces/s0.csv"\n'
             BASE + '[diagnosis]\ncandidates = ["lugre", "lugree"]\n' + EXP,
             "diagnosis.candidates[1]",
             "valid effects: coulomb_viscous, stribeck",
+        ),
+        (
+            BASE + "[diagnosis]\nlevel_scatter = 0.5\n" + EXP,
+            "diagnosis.level_scatter",
+            "0.5 is out of range: expected a relative friction level scatter in [0, 0.2]",
+        ),
+        (
+            BASE + '[diagnosis]\nlevel_scatter = "2 %"\n' + EXP,
+            "diagnosis.level_scatter",
+            "expected a number",
         ),
         ('[model]\npreset = "sead"\n' + EXP, "model.preset", "did you mean 'seed'"),
         (BASE + EXP + 'role = "test"\n', "experiment[0].role", "valid roles: train, validate"),

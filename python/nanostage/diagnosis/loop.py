@@ -29,6 +29,7 @@ from .objective import (
     proportional_gain_v_per_m,
     rms_of,
 )
+from .scatter import LevelScatter, level_floors, level_scatter_weights, level_sensitivities
 from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
 from .signatures import SignatureJudge
@@ -69,6 +70,9 @@ class _Ctx:
     #: per experiment by name (none: the command is not part of the gap;
     #: :func:`command_weights`).
     command_weights_m_per_v: Mapping[str, float] = field(default_factory=dict)
+    #: Weight of each sample of the position and the command gap, per experiment by name
+    #: (none: every sample counts 1; :mod:`~nanostage.diagnosis.scatter`).
+    sample_weights: Mapping[str, tuple[FloatArray, FloatArray | None]] = field(default_factory=dict)
 
     def problem(
         self,
@@ -84,6 +88,7 @@ class _Ctx:
             self.adapt,
             self.cache,
             self.command_weights_m_per_v,
+            self.sample_weights,
         )
 
     @property
@@ -376,6 +381,40 @@ def diagnose_experiments(
             nominal, (), lambda s, v: s, 1, st.seed
         )
         ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
+    # How far a run-to-run friction level change moves each experiment (the advice on
+    # repeats, and the weights of the samples with a given scatter).
+    cal = nominal_fits[0].system
+    sens = level_sensitivities(
+        list(every.values()),
+        {n: ctx.adapt(cal, e) for n, e in every.items()},
+        threads=st.threads,
+        cache=ctx.cache,
+    )
+    scatter: LevelScatter | None = None
+    if st.level_scatter > 0.0:
+        # Run-to-run friction scatter: the samples a level within it moves by many floors
+        # (long saturated slews) count less; the nominal model is calibrated again.
+        gains = {n: proportional_gain_v_per_m(ctx.adapt(nominal, e)) for n, e in every.items()}
+        scatter = level_scatter_weights(
+            list(every.values()),
+            sens,
+            floors,
+            command_floors_v(list(every.values()), nominal.encoder.count_m, floors, gains),
+            nominal.encoder.count_m,
+            st.level_scatter,
+        )
+        if scatter.weights:
+            ctx = dataclasses.replace(ctx, sample_weights=scatter.weights)
+            print_progress(
+                f"diagnosis: run-to-run friction scatter {st.level_scatter:.3g} (relative "
+                f"level) weighs down samples of {len(scatter.weights)} experiment(s); "
+                "calibrating again",
+                progress,
+            )
+            nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
+                nominal, (), lambda s, v: s, 1, st.seed
+            )
+            ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
     selected: list[str] = []
     rounds: list[list[CandidateResult]] = []
     refits: list[dict[str, Any]] = []
@@ -495,6 +534,10 @@ def diagnose_experiments(
         current_units = best.validation_units
     return {
         "command_weights_m_per_v": dict(ctx.command_weights_m_per_v),
+        "sample_weights": dict(ctx.sample_weights),
+        "level_scatter": None if scatter is None else scatter.to_dict(),
+        # A 1 % friction level change in units of each experiment's noise floor.
+        "level_floors": level_floors(sens, floors),
         "nominal": nominal_fits[0],
         "nominal_fits": nominal_fits,
         "nominal_validation_ms": base_ms,
@@ -726,6 +769,7 @@ def crossfit_models(
     settings: DiagnosisSettings,
     cache: SimulationCache | None = None,
     command_weights_m_per_v: Mapping[str, float] | None = None,
+    sample_weights: Mapping[str, tuple[FloatArray, FloatArray | None]] | None = None,
 ) -> list[tuple[list[Experiment], System, System]]:
     """Cross-fitting of the nominal and the selected model over the validation experiments:
     for each fold of :func:`crossfit_folds`, both models are refitted (one local fit from
@@ -737,7 +781,8 @@ def crossfit_models(
     recalibrate before using the model: the gap they leave is the shrink to expect then.
     With ``cache`` (the diagnosis's), the folds' shared simulations (the first Jacobian at
     the common warm start, on the experiments the folds have in common) are looked up. The
-    fits use the command as the diagnosis did (``command_weights_m_per_v``)."""
+    fits use the command and weigh the samples as the diagnosis did
+    (``command_weights_m_per_v``, ``sample_weights``)."""
     exps = list(train) + list(validate)
     nf = len(free)
 
@@ -766,7 +811,14 @@ def crossfit_models(
             return s
 
         return FitProblem(
-            params, build, training, settings.threads, adapt, cache, command_weights_m_per_v
+            params,
+            build,
+            training,
+            settings.threads,
+            adapt,
+            cache,
+            command_weights_m_per_v,
+            sample_weights,
         )
 
     jobs = []

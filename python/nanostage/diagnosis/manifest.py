@@ -93,6 +93,7 @@ from ..experiment import Experiment
 from ..model_file import load_model
 from ..output import OutputError, check_file_stems
 from ..presets import PRESET_CONTROLLER_KIND, PRESET_TRAVEL_M, preset_names, preset_system
+from .scatter import MAX_LEVEL_SCATTER
 from .traces import (
     ALL_COLUMNS,
     LENGTH_UNITS,
@@ -137,7 +138,7 @@ CONTROLLER_GAINS: Final[Mapping[str, tuple[str, ...]]] = MappingProxyType(
 
 _TOP_KEYS: Final = ("model", "controller", "diagnosis", "experiment")
 _MODEL_KEYS: Final = ("preset", "file", "free", "overrides", "bounds", "travel_m")
-_DIAGNOSIS_KEYS: Final = ("candidates", "seed")
+_DIAGNOSIS_KEYS: Final = ("candidates", "seed", "level_scatter")
 _EXPERIMENT_KEYS: Final = (
     "name",
     "file",
@@ -268,10 +269,13 @@ class ExperimentSpec:
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class DiagnosisSpec:
-    """The ``[diagnosis]`` table: candidate effects (resolved) and the random seed."""
+    """The ``[diagnosis]`` table: candidate effects (resolved), the random seed and the
+    run-to-run friction level scatter (relative, 1σ; 0: left out;
+    :attr:`~nanostage.diagnosis.settings.DiagnosisSettings.level_scatter`)."""
 
     candidates: tuple[str, ...]
     seed: int
+    level_scatter: float = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -767,7 +771,14 @@ def _parse_diagnosis(ctx: _Ctx, raw: Any) -> DiagnosisSpec:
     seed = table.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ctx.err("diagnosis.seed", f"expected an integer, got {_tname(seed)}")
-    return DiagnosisSpec(candidates=candidates, seed=seed)
+    scatter = ctx.number(table.get("level_scatter", 0.0), "diagnosis.level_scatter")
+    if not 0.0 <= scatter <= MAX_LEVEL_SCATTER:
+        raise ctx.err(
+            "diagnosis.level_scatter",
+            f"{scatter!r} is out of range: expected a relative friction level scatter in "
+            f"[0, {MAX_LEVEL_SCATTER}] (e.g. 0.02 for 2 %; 0 leaves it out)",
+        )
+    return DiagnosisSpec(candidates=candidates, seed=seed, level_scatter=scatter)
 
 
 def _parse_experiment(

@@ -49,6 +49,7 @@ __all__ = [
     "output_limit_v",
     "proportional_gain_v_per_m",
     "reading_quantum",
+    "repeat_pairs",
     "rms_of",
     "simulate_reading_and_command",
     "simulate_readings_and_commands",
@@ -501,25 +502,35 @@ def _repeat_spreads(
     the gap itself: sample by sample, but in holds as sorted values, so a limit cycle's
     phase (which no model predicts) is not scatter. ``command``: the spread of the measured
     commands instead (pairs with both commands only)."""
+    spreads = []
+    for a, b in repeat_pairs(experiments, count_m):
+        if command:
+            if a.command_v is None or b.command_v is None:
+                continue
+            plan = command_plan(gap_plan(a.position_m, a.reference_m), a.command_v)
+            r = apply_gap_plan(plan, a.command_v, b.command_v)
+        else:
+            r = gap_residual(a.position_m, b.position_m, a.reference_m)
+        spreads.append((experiment_kind(a.reference_m, count_m), float(np.mean(r**2)) / 2.0))
+    return spreads
+
+
+def repeat_pairs(
+    experiments: Sequence[Experiment], count_m: float
+) -> list[tuple[Experiment, Experiment]]:
+    """The pairs of repeated experiments (consecutive within each group of the same
+    reference at the same positions, to a tenth of a count): the same step elsewhere on the
+    travel is not a repeat, since position-dependent friction makes it differ."""
     groups: dict[tuple[int, float], list[Experiment]] = {}
     for e in experiments:
         key = (len(e.reference_m), round(float(e.reference_m[0]) / count_m))
         groups.setdefault(key, []).append(e)
-    spreads = []
-    for g in groups.values():
-        for a, b in itertools.pairwise(g):
-            if np.allclose(a.reference_m, b.reference_m, rtol=0.0, atol=count_m / 10):
-                if command:
-                    if a.command_v is None or b.command_v is None:
-                        continue
-                    plan = command_plan(gap_plan(a.position_m, a.reference_m), a.command_v)
-                    r = apply_gap_plan(plan, a.command_v, b.command_v)
-                else:
-                    r = gap_residual(a.position_m, b.position_m, a.reference_m)
-                spreads.append(
-                    (experiment_kind(a.reference_m, count_m), float(np.mean(r**2)) / 2.0)
-                )
-    return spreads
+    return [
+        (a, b)
+        for g in groups.values()
+        for a, b in itertools.pairwise(g)
+        if np.allclose(a.reference_m, b.reference_m, rtol=0.0, atol=count_m / 10)
+    ]
 
 
 def noise_floor_m(experiments: Sequence[Experiment], count_m: float) -> float:

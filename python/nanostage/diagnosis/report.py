@@ -471,6 +471,14 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
         if ex is not None:
             text += f" ({ex:.0%} of the gap above the floor explained)"
         lines.append(text)
+    scatter = report.get("level_scatter")
+    if isinstance(scatter, Mapping) and _num(scatter.get("spread")) is not None:
+        weighted = scatter.get("weighted") or {}
+        lines.append(
+            f"- **Run-to-run friction scatter:** {float(scatter['spread']):.3g} (relative "
+            f"level, given); the gap's samples in {len(weighted)} experiment(s) count by how "
+            "far a level within it moves them (the gaps shown are unweighted)"
+        )
     un_gap = report.get("unexplained")
     if isinstance(un_gap, Mapping) and _num(un_gap.get("gap_rms_m")) is not None:
         parts = [

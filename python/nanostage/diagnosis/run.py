@@ -220,10 +220,15 @@ def experiment_advice(
     results: Sequence[CandidateResult],
     penalty: float,
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]] | None = None,
+    *,
+    level_floors: Mapping[str, float] | None = None,
 ) -> list[dict[str, Any]]:
     """What the experiments cannot reveal, and which experiment would. With ``folds``, also
     whether the validation experiments revisit positions their training experiments
-    covered (:func:`position_coverage`)."""
+    covered (:func:`position_coverage`). With ``level_floors`` (by experiment name: how
+    many noise floors a 1 % run-to-run friction level change moves it,
+    :func:`~nanostage.diagnosis.scatter.level_floors`), the advice on repeats names the
+    experiments whose gap such scatter can dominate."""
     advice: list[dict[str, Any]] = []
     moves = [m for e in experiments for m in _moves(e)]
     signs = {math.copysign(1.0, m[2]) for m in moves if m[2] != 0}
@@ -286,12 +291,29 @@ def experiment_advice(
         key = (len(e.reference_m), travel_nm)
         refs[key] = refs.get(key, 0) + 1
     if max(refs.values()) < 2:
+        moved = sorted(((v, n) for n, v in (level_floors or {}).items() if v > 1.0), reverse=True)
+        issue = (
+            "no experiment is repeated: the trial-to-trial scatter (noise floor) is only "
+            "estimated from quantisation and sensor noise"
+        )
+        experiment = "repeat one experiment 3–5 times"
+        if moved:
+            v, n = moved[0]
+            others = len(moved) - 1
+            issue += (
+                f"; yet a 1 % run-to-run change of the friction levels moves {n} by "
+                f"{v:.3g} noise floors (RMS)"
+                + (f", and {others} other experiment(s) by more than one" if others else "")
+                + ": gaps and differences between candidates of that size there can be "
+                "scatter, not an effect (give the machine's scatter as level_scatter if it "
+                "is known)"
+            )
+            experiment = f"repeat {n} 3–5 times (the repeats measure the scatter)"
         advice.append(
             {
                 "effects": ["stochastic_friction"],
-                "issue": "no experiment is repeated: the trial-to-trial scatter (noise floor) "
-                "is only estimated from quantisation and sensor noise",
-                "experiment": "repeat one experiment 3–5 times",
+                "issue": issue,
+                "experiment": experiment,
             }
         )
     if all(e.command_v is None for e in experiments):
@@ -526,7 +548,9 @@ def diagnose(
     setup = _setup(manifest)
     m, nominal, free, folds = setup.manifest, setup.nominal, setup.free, setup.folds
     adapt = setup.adapt
-    st = settings or DiagnosisSettings(seed=m.diagnosis.seed)
+    st = settings or DiagnosisSettings(
+        seed=m.diagnosis.seed, level_scatter=m.diagnosis.level_scatter
+    )
     names = [c for c in m.diagnosis.candidates if c in CANDIDATES]
     cands, _ = applicable_candidates(nominal, names)
     for w in setup.warnings.values():
@@ -727,6 +751,7 @@ def _crossfit(
         settings=st,
         cache=out["cache"],
         command_weights_m_per_v=out["command_weights_m_per_v"],
+        sample_weights=out["sample_weights"],
     )
     # Both models of every fold in one batch: the judged experiments once with the nominal
     # refit, once with the selected one.
@@ -834,8 +859,15 @@ def assemble_report(
         ],
         "evidence": evidence,
         "advice": experiment_advice(
-            val + [e for t, _ in folds for e in t], lead_m, first, penalty, folds
+            val + [e for t, _ in folds for e in t],
+            lead_m,
+            first,
+            penalty,
+            folds,
+            level_floors=out.get("level_floors"),
         ),
+        "level_scatter": out.get("level_scatter"),
+        "level_floors": dict(out.get("level_floors") or {}),
         "skipped": dict(out["skipped"]),
         "refit_control": list(out.get("refit_control", [])),
         "nominal_parameters": _free_parameters(out["nominal"], out["nominal"]),

@@ -1,0 +1,209 @@
+"""Run-to-run friction scatter in the diagnosis's gap: the level factor, the sample weights
+and the weighted fit residuals."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from diagnosis_cases import step_case
+
+from nanostage import presets
+from nanostage.config import get_path, replace_paths
+from nanostage.diagnosis.candidates import Param
+from nanostage.diagnosis.fit import FitProblem
+from nanostage.diagnosis.loop import command_weights
+from nanostage.diagnosis.objective import experiment_floors_m, simulate_readings_and_commands
+from nanostage.diagnosis.run import diagnose, experiment_advice
+from nanostage.diagnosis.scatter import (
+    LEVEL_STEP,
+    MAX_LEVEL_SCATTER,
+    SMOOTHING_SAMPLES,
+    _smoothed,
+    level_floors,
+    level_scatter_weights,
+    level_sensitivities,
+    with_friction_level,
+)
+from nanostage.diagnosis.settings import DiagnosisSettings
+from nanostage.effects import Effects, FrictionModifiers
+from nanostage.experiment import Experiment
+from nanostage.simulate import simulate
+
+Q = 1e-7
+LEVELS = (
+    "plant.dahl.coulomb_force_n",
+    "plant.motor_friction.static_torque_nm",
+    "plant.motor_friction.coulomb_torque_nm",
+)
+
+
+def _step(
+    system: Any, step_m: float, name: str, start_m: float = 2e-3, seed: int = 1
+) -> Experiment:
+    """A step after a rest of 20 samples, held 300 samples, simulated by nanostage with its
+    command."""
+    x0 = start_m + Q / 3
+    ref = np.concatenate([np.full(20, x0), np.full(300, x0 + step_m)])
+    tr = simulate(system, ref, seed=seed, initial_position_m=x0)
+    return Experiment(
+        name=name,
+        time_s=tr.time_s,
+        reference_m=ref,
+        position_m=tr.encoder_position_m,
+        command_v=tr.command * tr.output_unit_v,
+    )
+
+
+def test_friction_level_factor_scales_every_level_as_the_parameters_do() -> None:
+    s = presets.seed(500e-6)
+    e = _step(s, 500e-6, "a")
+    raised = with_friction_level(s, 1.05)
+    scaled = replace_paths(s, {p: 1.05 * get_path(s, p) for p in LEVELS})
+    (r0, _), (r1, c1), (r2, c2) = simulate_readings_and_commands([s, raised, scaled], [e] * 3)
+    # The same trace up to rounding (the factor multiplies inside the core, the parameters
+    # outside), and a different one from the unscaled model.
+    assert np.max(np.abs(r1 - r2)) < 1e-3 * Q and np.max(np.abs(c1 - c2)) < 1e-6
+    assert np.max(np.abs(r1 - r0)) > 10 * Q
+    assert with_friction_level(s, 1.0) is s
+    for bad in (0.99, 1.91, float("nan")):
+        with pytest.raises(ValueError, match="factor"):
+            with_friction_level(s, bad)
+
+
+def test_sample_weights_count_each_sample_by_how_far_the_scatter_moves_it() -> None:
+    s = presets.seed(1e-3)
+    long_step = _step(s, 1e-3, "long")
+    small = _step(s, 100e-6, "small", start_m=5e-3)
+    rep_a = _step(s, 500e-6, "rep_a", start_m=10e-3, seed=2)
+    rep_b = _step(s, 500e-6, "rep_b", start_m=10e-3, seed=3)
+    exps = [long_step, small, rep_a, rep_b]
+    floors = experiment_floors_m(exps, Q)
+    cmd_floors = {n: 0.01 for n in floors}
+    systems = {e.name: s for e in exps}
+    sens = level_sensitivities(exps, systems)
+    sc = level_scatter_weights(exps, sens, floors, cmd_floors, Q, 0.03)
+    assert sc.spread == 0.03
+    # The repeated pair keeps weight 1: its floor holds the scatter already.
+    assert sorted(sc.repeated) == ["rep_a", "rep_b"]
+    assert "rep_a" not in sc.weights and "rep_b" not in sc.weights
+    wp, wc = sc.weights["long"]
+    assert wc is not None and len(wp) == len(long_step.time_s) == len(wc)
+    assert np.all((wp > 0.0) & (wp <= 1.0)) and np.all((wc > 0.0) & (wc <= 1.0))
+    # By hand: f / √(f² + (σ·J)²) with J the change per unit of relative level, averaged
+    # over SMOOTHING_SAMPLES.
+    ((r0, _), (r1, _)) = simulate_readings_and_commands(
+        [s, with_friction_level(s, 1.0 + LEVEL_STEP)], [long_step] * 2
+    )
+    j = _smoothed((r1 - r0) / LEVEL_STEP)
+    f = floors["long"]
+    assert np.allclose(wp, f / np.sqrt(f**2 + (0.03 * j) ** 2), rtol=1e-12, atol=0.0)
+    # Before the move the level moves nothing (weight 1); in the slew of the long step a
+    # 3 % level moves the reading by many floors.
+    assert np.all(wp[: 20 - SMOOTHING_SAMPLES // 2] == 1.0)
+    assert float(np.min(wp)) < 0.2
+    # A larger scatter weighs every sample at most as much.
+    wider = level_scatter_weights(exps, sens, floors, cmd_floors, Q, 0.1)
+    assert np.all(wider.weights["long"][0] <= wp)
+    for bad in (0.0, -0.01, MAX_LEVEL_SCATTER * 1.01, float("nan")):
+        with pytest.raises(ValueError, match="level_scatter"):
+            level_scatter_weights(exps, sens, floors, cmd_floors, Q, bad)
+
+
+def test_smoothing_is_a_centred_moving_average_shrunk_at_the_ends() -> None:
+    j = np.arange(100, dtype=float) ** 2
+    out = _smoothed(j)
+    h = SMOOTHING_SAMPLES // 2
+    for i in (0, 3, h, 50, 99):
+        lo, hi = max(i - h, 0), min(i + h + 1, 100)
+        assert out[i] == pytest.approx(float(np.mean(j[lo:hi])), rel=1e-12)
+    # A linear ramp away from the ends is left as it is.
+    ramp = np.linspace(0.0, 1.0, 200)
+    assert np.allclose(_smoothed(ramp)[h:-h], ramp[h:-h], rtol=0.0, atol=1e-12)
+
+
+def test_fit_residuals_are_the_gap_times_the_sample_weights() -> None:
+    s = presets.seed(500e-6)
+    exps = [_step(s, 500e-6, "a"), _step(s, -500e-6, "b", start_m=4e-3, seed=2)]
+    floors = experiment_floors_m(exps, Q)
+    weights = command_weights(exps, {e.name: s for e in exps}, floors, Q, DiagnosisSettings())
+    rng = np.random.default_rng(0)
+    sw = {
+        e.name: (rng.uniform(0.1, 1.0, len(e.time_s)), rng.uniform(0.1, 1.0, len(e.time_s)))
+        for e in exps
+    }
+    name = "plant.dahl.coulomb_force_n"
+    free = [(name, Param(name=name, unit="N", lower=20.0, upper=40.0, initial=30.4))]
+
+    def build(v: Any) -> Any:
+        return replace_paths(s, {name: v[0]})
+
+    plain = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights)
+    weighted = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights, sw)
+    other = build([33.0])
+    for e, p, w in zip(
+        exps, plain.residuals(other, exps), weighted.residuals(other, exps), strict=True
+    ):
+        n = len(e.time_s)
+        wp, wc = sw[e.name]
+        assert np.array_equal(w[:n], p[:n] * wp)
+        assert np.allclose(w[n:], p[n:] * wc, rtol=1e-14, atol=0.0)
+    # Position-only weights leave the command part as it was.
+    only = FitProblem(
+        free, build, exps, 1, lambda x, e: x, None, weights, {"a": (sw["a"][0], None)}
+    )
+    pa, wa = plain.residuals(other, exps[:1])[0], only.residuals(other, exps[:1])[0]
+    n = len(exps[0].time_s)
+    assert np.array_equal(wa[n:], pa[n:])
+
+
+def test_level_scatter_setting_is_off_by_default() -> None:
+    assert DiagnosisSettings().level_scatter == 0.0
+    assert dc.replace(DiagnosisSettings(), level_scatter=0.02).level_scatter == 0.02
+
+
+def test_repeat_advice_names_the_experiment_a_level_change_moves_most() -> None:
+    s = presets.seed(1e-3)
+    exps = [_step(s, 1e-3, "long"), _step(s, 100e-6, "small", start_m=5e-3)]
+    floors = experiment_floors_m(exps, Q)
+    sens = level_sensitivities(exps, {e.name: s for e in exps})
+    lf = level_floors(sens, floors)
+    # By hand: the RMS of 1 % of the sensitivity over the floor.
+    jp = sens["long"][0]
+    assert lf["long"] == pytest.approx(float(np.sqrt(np.mean((0.01 * jp) ** 2))) / floors["long"])
+    assert lf["long"] > lf["small"] > 0.0 and lf["long"] > 1.0
+
+    def repeat_advice(level: dict[str, float] | None) -> dict[str, Any]:
+        out = experiment_advice(exps, 2e-3, [], 0.05, level_floors=level)
+        return next(a for a in out if a["effects"] == ["stochastic_friction"])
+
+    plain = repeat_advice(None)
+    assert plain["experiment"] == "repeat one experiment 3–5 times"
+    named = repeat_advice({"long": 19.04, "small": 2.5, "other": 0.4})
+    assert "moves long by 19 noise floors" in named["issue"]
+    assert "1 other experiment(s) by more than one" in named["issue"]
+    assert named["experiment"].startswith("repeat long 3–5 times")
+    # Below one floor everywhere: the plain advice.
+    assert repeat_advice({"long": 0.9})["experiment"] == plain["experiment"]
+
+
+def test_diagnosis_with_a_given_scatter_still_finds_the_asymmetry(tmp_path: Path) -> None:
+    # The shared step case (its truth's levels scatter by 0.3 % from run to run) with the
+    # scatter given: the long steps' slews count less, and the asymmetry is still found.
+    m = step_case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    fast = DiagnosisSettings(
+        n_starts_nominal=1, n_starts_candidate=1, forward_rounds=2, level_scatter=0.003
+    )
+    d = diagnose(m, tmp_path / "out", settings=fast, progress=False, figures=False)
+    r = d.report
+    assert r["selected"] == ["asymmetric_friction"]
+    assert r["level_scatter"]["spread"] == 0.003
+    assert set(r["level_scatter"]["weighted"]) <= {"e0", "e1", "e2", "e3"}
+    assert r["level_scatter"]["weighted"], "the 0.5 mm steps' slews are weighted"
+    assert set(r["level_floors"]) == {"e0", "e1", "e2", "e3"}
+    text = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    assert "**Run-to-run friction scatter:** 0.003" in text
