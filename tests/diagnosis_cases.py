@@ -15,6 +15,22 @@ from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effects import Effects, StochasticFriction
 from nanostage.experiment import Experiment
 
+
+def simulated_experiment(
+    system: ns.System, reference_m: np.ndarray, name: str, seed: int, start_m: float
+) -> Experiment:
+    """An experiment simulated by nanostage itself on ``reference_m`` from rest at
+    ``start_m``, with its command (volts)."""
+    tr = ns.simulate(system, reference_m, seed=seed, initial_position_m=start_m)
+    return Experiment(
+        name=name,
+        time_s=tr.time_s,
+        reference_m=reference_m,
+        position_m=tr.encoder_position_m,
+        command_v=tr.command * tr.output_unit_v,
+    )
+
+
 #: The candidates of the case's manifest unless given.
 STEP_CASE_CANDIDATES = ("asymmetric_friction", "offset_force", "lead_periodic_friction")
 

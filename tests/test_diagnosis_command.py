@@ -13,6 +13,7 @@ from typing import Any, cast
 import numpy as np
 import pytest
 import tomllib
+from diagnosis_cases import simulated_experiment
 
 from nanostage import presets
 from nanostage._core import ConfigError
@@ -40,7 +41,6 @@ from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.settings import DiagnosisSettings
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.experiment import Experiment
-from nanostage.simulate import simulate
 
 Q = 1e-7
 
@@ -51,14 +51,7 @@ def _measured(system: Any, steps: list[float], name: str, seed: int = 1) -> Expe
     ref = np.concatenate(
         [np.full(150, 2e-3 + Q / 3 + sum(steps[:k])) for k in range(len(steps) + 1)]
     )
-    tr = simulate(system, ref, seed=seed, initial_position_m=2e-3 + Q / 3)
-    return Experiment(
-        name=name,
-        time_s=tr.time_s,
-        reference_m=ref,
-        position_m=tr.encoder_position_m,
-        command_v=tr.command * tr.output_unit_v,
-    )
+    return simulated_experiment(system, ref, name, seed, 2e-3 + Q / 3)
 
 
 def test_proportional_gain_by_hand() -> None:

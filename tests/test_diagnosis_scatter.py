@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from diagnosis_cases import step_case
+from diagnosis_cases import simulated_experiment, step_case
 
 from nanostage import presets
 from nanostage.config import get_path, replace_paths
@@ -31,7 +31,6 @@ from nanostage.diagnosis.scatter import (
 from nanostage.diagnosis.settings import DiagnosisSettings
 from nanostage.effects import Effects, FrictionModifiers
 from nanostage.experiment import Experiment
-from nanostage.simulate import simulate
 
 Q = 1e-7
 LEVELS = (
@@ -48,14 +47,7 @@ def _step(
     command."""
     x0 = start_m + Q / 3
     ref = np.concatenate([np.full(20, x0), np.full(300, x0 + step_m)])
-    tr = simulate(system, ref, seed=seed, initial_position_m=x0)
-    return Experiment(
-        name=name,
-        time_s=tr.time_s,
-        reference_m=ref,
-        position_m=tr.encoder_position_m,
-        command_v=tr.command * tr.output_unit_v,
-    )
+    return simulated_experiment(system, ref, name, seed, x0)
 
 
 def test_friction_level_factor_scales_every_level_as_the_parameters_do() -> None:

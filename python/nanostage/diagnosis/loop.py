@@ -371,16 +371,13 @@ def diagnose_experiments(
         # again on both, from its calibration on the position.
         ctx = dataclasses.replace(ctx, command_weights_m_per_v=cmd_weights)
         w = sorted(cmd_weights.values())
-        print_progress(
+        nominal_fits, base_ms, base_cmd, base_units = _calibrate_again(
+            ctx,
             f"diagnosis: the measured command joins the gap in {len(w)} experiment(s) "
             f"(weight {w[len(w) // 2]:.3g} m/V, median: the position's noise floor over the "
             "command's); calibrating again on both",
             progress,
         )
-        nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
-            nominal, (), lambda s, v: s, 1, st.seed
-        )
-        ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
     # How far a run-to-run friction level change moves each experiment (the advice on
     # repeats, and the weights of the samples with a given scatter).
     cal = nominal_fits[0].system
@@ -405,16 +402,13 @@ def diagnose_experiments(
         )
         if scatter.weights:
             ctx = dataclasses.replace(ctx, sample_weights=scatter.weights)
-            print_progress(
+            nominal_fits, base_ms, base_cmd, base_units = _calibrate_again(
+                ctx,
                 f"diagnosis: run-to-run friction scatter {st.level_scatter:.3g} (relative "
                 f"level) weighs down samples of {len(scatter.weights)} experiment(s); "
                 "calibrating again",
                 progress,
             )
-            nominal_fits, base_ms, _, base_cmd, base_units = ctx.fit_and_validate(
-                nominal, (), lambda s, v: s, 1, st.seed
-            )
-            ctx.warm[:] = [_free_values(f, free) for f in nominal_fits]
     selected: list[str] = []
     rounds: list[list[CandidateResult]] = []
     refits: list[dict[str, Any]] = []
@@ -563,6 +557,19 @@ def diagnose_experiments(
             "reused": 0 if ctx.cache is None else ctx.cache.hits,
         },
     }
+
+
+def _calibrate_again(
+    ctx: _Ctx, message: str, progress: bool
+) -> tuple[list[Fit], FloatArray, list[float | None], FloatArray]:
+    """Calibrate the nominal model again from its warm values (one local fit per fold) after
+    the gap changed (the command joined it, or its samples were weighted); the warm values
+    become the new fits'. Returns the fits, the validation mean squares, the validation
+    command residuals and the validation moves' shares (as :meth:`_Ctx.fit_and_validate`)."""
+    print_progress(message, progress)
+    fits, ms, _, cmd, units = ctx.fit_and_validate(ctx.nominal, (), lambda s, v: s, 1, ctx.st.seed)
+    ctx.warm[:] = [_free_values(f, ctx.free) for f in fits]
+    return fits, ms, cmd, units
 
 
 def command_weights(
