@@ -29,7 +29,7 @@ from nanostage.diagnosis.scatter import (
     with_friction_level,
 )
 from nanostage.diagnosis.settings import DiagnosisSettings
-from nanostage.effects import Effects, FrictionModifiers
+from nanostage.effects import Effects, FrictionModifiers, PositionFriction
 from nanostage.experiment import Experiment
 
 Q = 1e-7
@@ -199,3 +199,23 @@ def test_diagnosis_with_a_given_scatter_still_finds_the_asymmetry(tmp_path: Path
     assert set(r["level_floors"]) == {"e0", "e1", "e2", "e3"}
     text = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert "**Run-to-run friction scatter:** 0.003" in text
+
+
+def test_a_model_without_room_for_the_level_factor_gets_no_sensitivity() -> None:
+    s = presets.seed(1e-3)
+    full = dc.replace(
+        s,
+        effects=dc.replace(
+            s.effects,
+            position_friction=(PositionFriction(side="table", terms=((0.895, 1e3, 0.0),)),),
+        ),
+    )
+    with pytest.raises(ValueError, match="amplitude"):
+        with_friction_level(full, 1.01)
+    a, b = _step(s, 1e-3, "a"), _step(s, 1e-3, "b", start_m=5e-3)
+    sens = level_sensitivities([a, b], {"a": s, "b": full})
+    assert set(sens) == {"a"}
+    floors = experiment_floors_m([a, b], Q)
+    sc = level_scatter_weights([a, b], sens, floors, {}, Q, 0.03)
+    assert set(sc.weights) == {"a"}
+    assert level_sensitivities([b], {"b": full}) == {}

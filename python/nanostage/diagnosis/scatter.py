@@ -150,12 +150,21 @@ def level_sensitivities(
     (m) and of the command (V) per unit of relative friction level, averaged over
     :data:`SMOOTHING_SAMPLES` (:func:`_smoothed`), each experiment simulated with its model
     in ``systems`` (by name) and with every level raised by :data:`LEVEL_STEP`, all in one
-    batch."""
-    exps = list(experiments)
-    base = [systems[e.name] for e in exps]
-    raised = [with_friction_level(s, 1.0 + LEVEL_STEP) for s in base]
+    batch. An experiment whose model cannot take the raised level (its position modulation
+    full: amplitudes summing to 0.9, or every term in use) is left out."""
+    exps, base, raised = [], [], []
+    for e in experiments:
+        try:
+            up = with_friction_level(systems[e.name], 1.0 + LEVEL_STEP)
+        except ValueError:
+            # A model whose position modulation has no room left (amplitudes summing to
+            # 0.9, or every term in use): no sensitivity for it.
+            continue
+        exps.append(e)
+        base.append(systems[e.name])
+        raised.append(up)
     simulate = simulate_readings_and_commands if cache is None else cache.simulate
-    sims = simulate(base + raised, exps + exps, threads)
+    sims = simulate(base + raised, exps + exps, threads) if exps else []
     n = len(exps)
     return {
         e.name: (
@@ -194,7 +203,8 @@ def level_scatter_weights(
     scatter ``spread`` (relative, 1σ, in (0, :data:`MAX_LEVEL_SCATTER`]) from their level
     ``sensitivities`` (:func:`level_sensitivities`, by name). ``floors_m``: each
     experiment's position floor, m; ``command_floors_v``: its command floor, V (0 or
-    missing: the command keeps weight 1)."""
+    missing: the command keeps weight 1). An experiment without a sensitivity keeps weight
+    1."""
     if not 0.0 < spread <= MAX_LEVEL_SCATTER:
         raise ValueError(
             f"level_scatter = {spread!r} is invalid: expected a relative friction level "
@@ -206,6 +216,8 @@ def level_scatter_weights(
     for e in exps:
         fp = floors_m.get(e.name, 0.0)
         if e.name in repeated or fp <= 0.0:
+            continue
+        if e.name not in sensitivities:
             continue
         jp, jc = sensitivities[e.name]
         wp = fp / np.sqrt(fp**2 + (spread * jp) ** 2)
