@@ -895,10 +895,22 @@ def _alive(pid: int) -> bool:
     return "\nState:\tZ" not in status  # a zombie has exited
 
 
-def _cpu_s(pid: int) -> float:
-    """CPU time a process has used [s] (user + system, from /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text(encoding="utf-8").rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+def _describe(pid: int) -> str:
+    """A live process's state, parent and what each of its threads waits in (from /proc),
+    for the message of a failed assertion."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text(encoding="utf-8").splitlines()
+        lines = [ln for ln in status if ln.split(":")[0] in ("State", "PPid", "Threads")]
+        for task in sorted(Path(f"/proc/{pid}/task").iterdir()):
+            wchan = (task / "wchan").read_text(encoding="utf-8").strip()
+            lines.append(f"thread {task.name} waits in {wchan or '-'}")
+    except OSError as exc:
+        return f"process {pid}: {exc}"
+    return f"process {pid}: " + "; ".join(lines)
+
+
+def _threads(pid: int) -> int:
+    return len(list(Path(f"/proc/{pid}/task").iterdir()))
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and /proc")
@@ -929,8 +941,10 @@ def test_pool_workers_exit_with_the_campaign_process(
             time.sleep(0.05)
         workers = [int(p) for p in pids_file.read_text(encoding="utf-8").split()]
         assert len(workers) == 2 and all(_alive(p) for p in workers)
-        # A worker watches its parent from its first chunk on: wait until both compute.
-        while min(_cpu_s(p) for p in workers) < 0.3:
+        # A worker watches its parent from its first chunk on, in a thread of its own: wait
+        # until both have one. (CPU time alone does not tell: unpickling the first chunk's
+        # cycle takes a few tenths of a second.)
+        while min(_threads(p) for p in workers) < 2:
             assert proc.poll() is None, log.read_text(encoding="utf-8")
             assert time.monotonic() < deadline, "the workers did not start computing"
             time.sleep(0.05)
@@ -939,7 +953,9 @@ def test_pool_workers_exit_with_the_campaign_process(
         deadline = time.monotonic() + 30  # workers poll their parent every 0.2 s
         while any(_alive(p) for p in workers) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not any(_alive(p) for p in workers)
+        assert not any(_alive(p) for p in workers), "\n".join(
+            [_describe(p) for p in workers if _alive(p)] + [log.read_text(encoding="utf-8")]
+        )
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -947,3 +963,72 @@ def test_pool_workers_exit_with_the_campaign_process(
         for p in workers:  # after a failure: leave no worker behind
             if _alive(p):
                 os.kill(p, signal.SIGKILL)
+
+
+LATE_SCRIPT = textwrap.dedent(
+    """
+    import multiprocessing, os, sys, time
+    from nanostage import cycles, presets
+    from nanostage.campaign import _run_chunk
+
+    def work(parent_pid, release):
+        # A pool worker that takes a chunk from its queue after the campaign's process died.
+        while not os.path.exists(release):
+            time.sleep(0.02)
+        cycle = cycles.step_cycle(
+            step_m=100e-6, repeats=2, dwell_s=0.2, return_s=0.2, sample_period_s=1e-3
+        )
+        system = presets.seed(100e-6)
+        _run_chunk(system, cycle.reference_m, cycle.measure_index, 0, 1, 0, 1, parent_pid)
+        time.sleep(600)  # then it waits for the next chunk, for ever
+
+    if __name__ == "__main__":
+        ctx = multiprocessing.get_context(sys.argv[3])
+        worker = ctx.Process(target=work, args=(os.getpid(), sys.argv[2]))
+        worker.start()
+        with open(sys.argv[1] + ".tmp", "w") as f:
+            f.write(str(worker.pid))
+        os.replace(sys.argv[1] + ".tmp", sys.argv[1])
+        time.sleep(600)
+    """
+)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and /proc")
+@pytest.mark.parametrize("start_method", ["fork", "spawn", "forkserver"])
+def test_a_worker_that_takes_a_chunk_after_the_campaign_process_died_exits(
+    tmp_path: Path, start_method: str
+) -> None:
+    script = tmp_path / "late.py"
+    script.write_text(LATE_SCRIPT, encoding="utf-8")
+    pid_file, release = tmp_path / "pid.txt", tmp_path / "release"
+    log = tmp_path / "err.txt"
+    with log.open("wb") as err:
+        proc = subprocess.Popen(
+            [sys.executable, str(script), str(pid_file), str(release), start_method],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+        )
+    worker = 0
+    try:
+        deadline = time.monotonic() + 120
+        while not (pid_file.exists() and pid_file.read_text(encoding="utf-8").strip()):
+            assert proc.poll() is None, log.read_text(encoding="utf-8")
+            assert time.monotonic() < deadline, "the worker did not start"
+            time.sleep(0.05)
+        worker = int(pid_file.read_text(encoding="utf-8"))
+        proc.kill()
+        proc.wait(timeout=60)
+        assert _alive(worker)
+        release.touch()  # the worker takes its chunk now, its parent dead
+        deadline = time.monotonic() + 60
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(worker), _describe(worker) + "\n" + log.read_text(encoding="utf-8")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if worker and _alive(worker):
+            os.kill(worker, signal.SIGKILL)

@@ -27,6 +27,7 @@ Example::
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
 import sys
 import threading
@@ -369,15 +370,29 @@ def watch_parent(parent_pid: int) -> None:
     """In a worker process started by the campaign's own process (a process pool), exit
     when that process is gone, so that a campaign killed by SIGTERM or SIGKILL does not leave
     its pool's workers behind (they would otherwise wait for work for ever). Does nothing in
-    the campaign's own process (threads) or in a process that is not its direct child (a
-    Dask worker: Dask watches its own workers)."""
+    the campaign's own process (threads) or in a process the campaign's process did not
+    start (a Dask worker under its nanny: Dask watches its own workers).
+
+    A worker may take a chunk from its pool's queue after the campaign's process has died;
+    it then exits at once. Which process started this one comes from :mod:`multiprocessing`
+    (the parent's pid and the pipe it holds open while it lives), not from the current
+    parent pid, which is that of a reaper once the parent is gone."""
     global _watched_parent
-    if parent_pid == os.getpid() or os.getppid() != parent_pid or _watched_parent == parent_pid:
+    parent = multiprocessing.parent_process()
+    if (
+        parent_pid == os.getpid()
+        or parent is None
+        or parent.pid != parent_pid
+        or _watched_parent == parent_pid
+    ):
         return
     _watched_parent = parent_pid
+    # A reparented worker (fork, spawn) or a dead fork server (forkserver) changes this pid;
+    # the parent's pipe closes when the parent exits and no sibling worker holds it open.
+    ppid = os.getppid()
 
     def watch() -> None:
-        while os.getppid() == parent_pid:
+        while os.getppid() == ppid and parent.is_alive():
             time.sleep(_PARENT_POLL_S)
         _worker_control.request_stop()
         os._exit(1)
