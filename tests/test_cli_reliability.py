@@ -986,8 +986,12 @@ LATE_SCRIPT = textwrap.dedent(
         ctx = multiprocessing.get_context(sys.argv[3])
         worker = ctx.Process(target=work, args=(os.getpid(), sys.argv[2]))
         worker.start()
+        # An idle sibling started after it (a pool worker that never got a chunk): forked, it
+        # holds the pipe through which the worker would see its parent exit.
+        sibling = ctx.Process(target=time.sleep, args=(600,))
+        sibling.start()
         with open(sys.argv[1] + ".tmp", "w") as f:
-            f.write(str(worker.pid))
+            f.write(f"{worker.pid} {sibling.pid}")
         os.replace(sys.argv[1] + ".tmp", sys.argv[1])
         time.sleep(600)
     """
@@ -1010,14 +1014,14 @@ def test_a_worker_that_takes_a_chunk_after_the_campaign_process_died_exits(
             stdout=subprocess.DEVNULL,
             stderr=err,
         )
-    worker = 0
+    worker = sibling = 0
     try:
         deadline = time.monotonic() + 120
         while not (pid_file.exists() and pid_file.read_text(encoding="utf-8").strip()):
             assert proc.poll() is None, log.read_text(encoding="utf-8")
             assert time.monotonic() < deadline, "the worker did not start"
             time.sleep(0.05)
-        worker = int(pid_file.read_text(encoding="utf-8"))
+        worker, sibling = (int(p) for p in pid_file.read_text(encoding="utf-8").split())
         proc.kill()
         proc.wait(timeout=60)
         assert _alive(worker)
@@ -1030,5 +1034,6 @@ def test_a_worker_that_takes_a_chunk_after_the_campaign_process_died_exits(
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        if worker and _alive(worker):
-            os.kill(worker, signal.SIGKILL)
+        for p in (worker, sibling):
+            if p and _alive(p):
+                os.kill(p, signal.SIGKILL)

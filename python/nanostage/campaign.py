@@ -374,7 +374,7 @@ def watch_parent(parent_pid: int) -> None:
     start (a Dask worker under its nanny: Dask watches its own workers).
 
     A worker may take a chunk from its pool's queue after the campaign's process has died;
-    it then exits at once. Which process started this one comes from :mod:`multiprocessing`
+    it then exits within a poll. Which process started this one comes from :mod:`multiprocessing`
     (the parent's pid and the pipe it holds open while it lives), not from the current
     parent pid, which is that of a reaper once the parent is gone."""
     global _watched_parent
@@ -387,12 +387,26 @@ def watch_parent(parent_pid: int) -> None:
     ):
         return
     _watched_parent = parent_pid
-    # A reparented worker (fork, spawn) or a dead fork server (forkserver) changes this pid;
-    # the parent's pipe closes when the parent exits and no sibling worker holds it open.
+    # A reparented worker (fork, spawn) or a dead fork server (forkserver) changes this pid.
     ppid = os.getppid()
 
+    def gone() -> bool:
+        # The parent's pipe closes when the parent exits, unless a sibling forked after this
+        # worker holds it open; the parent's pid then names no process.
+        if os.getppid() != ppid or not parent.is_alive():
+            return True
+        if os.name != "posix":  # os.kill(pid, 0) is no existence test on Windows
+            return False
+        try:
+            os.kill(parent_pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:  # the pid names another user's process: reused
+            return True
+        return False
+
     def watch() -> None:
-        while os.getppid() == ppid and parent.is_alive():
+        while not gone():
             time.sleep(_PARENT_POLL_S)
         _worker_control.request_stop()
         os._exit(1)
