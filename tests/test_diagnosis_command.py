@@ -410,3 +410,36 @@ def test_advice_names_validation_at_positions_training_never_covered() -> None:
     again = experiment_advice(train + twins, 2e-3, [], 0.05, [(train, twins)])
     assert not [a for a in again if a["effects"] == ["position_random_friction"]]
     assert position_coverage([(train, [])]) is None
+
+
+def test_advice_says_when_one_validation_experiment_holds_the_gap() -> None:
+    from nanostage.diagnosis import independent_truth as it
+
+    design = it.experiment_design()
+    exps = [
+        Experiment(
+            name=d.name,
+            time_s=np.arange(d.reference_m.size) * 1e-3,
+            reference_m=d.reference_m,
+            position_m=np.round(d.reference_m / Q) * Q,
+        )
+        for d in design
+    ]
+    ranked = cast(
+        Any, [SimpleNamespace(effect=e, shrink=0.0) for e in ("backlash", "lugre", "gms", "x")]
+    )
+
+    def judged_alone(gaps: dict[str, float] | None) -> list[dict[str, Any]]:
+        out = experiment_advice(exps, 2e-3, ranked, 0.05, validation_gap_m2=gaps)
+        return [a for a in out if "of the validation gap before" in a["issue"]]
+
+    # 9 of 10 parts of the sum of squares in one experiment: above the 80 % share.
+    (hit,) = judged_alone({"exp02_step": 9.0e-12, "exp08_ramp": 0.9e-12, "exp05_micro": 0.1e-12})
+    assert hit["issue"].startswith("exp02_step holds 90% of the validation gap before (of 3")
+    assert hit["effects"] == ["backlash", "lugre", "gms"]
+    assert hit["experiment"].endswith("repeat exp02_step 3–5 times")
+    # At 70 %, with one validation experiment, or without the gaps: no such advice.
+    assert judged_alone({"exp02_step": 7.0, "exp08_ramp": 3.0}) == []
+    assert judged_alone({"exp02_step": 1.0}) == []
+    assert judged_alone({"exp02_step": 0.0, "exp08_ramp": 0.0}) == []
+    assert judged_alone(None) == []

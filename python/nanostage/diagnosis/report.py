@@ -608,8 +608,8 @@ def _advice(advice: Sequence[Any]) -> str:
         return (
             "None of the design checks found a gap: both directions and reversals, dwells "
             "at least a factor 2 apart, the command logged, ramps at several speeds, "
-            "micro-steps, a travel of two screw leads, validation where training ran and a "
-            "repeat are there, and no two "
+            "micro-steps, a travel of two screw leads, validation where training ran and "
+            "spread over several experiments, and a repeat are there, and no two "
             "significant candidates fit the validation data equally well. Whether an "
             "effect's marks are large enough to see in these experiments is not judged "
             "here (an effect that is there can still leave them below the noise).\n"
@@ -621,7 +621,7 @@ def _advice(advice: Sequence[Any]) -> str:
             continue
         effects = ", ".join(f"`{_md_escape(str(e))}`" for e in a.get("effects") or [])
         lines.append(
-            f"- {effects}: {_md_escape(str(a.get('issue', '')))}. "
+            f"- {effects + ': ' if effects else ''}{_md_escape(str(a.get('issue', '')))}. "
             f"**Experiment:** {_md_escape(str(a.get('experiment', '')))}"
         )
     return "\n".join(lines) + "\n"

@@ -189,6 +189,9 @@ def best_single(
 #: their training experiments covered, a friction that varies irregularly with position
 #: cannot be judged (:func:`experiment_advice`).
 MIN_POSITION_COVERAGE = 0.5
+#: Above this share of the validation gap before (its sum of squares) in one validation
+#: experiment, the candidates are judged on that experiment alone (:func:`experiment_advice`).
+MAX_VALIDATION_SHARE = 0.8
 
 
 def position_coverage(
@@ -222,14 +225,35 @@ def experiment_advice(
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]] | None = None,
     *,
     level_floors: Mapping[str, float] | None = None,
+    validation_gap_m2: Mapping[str, float] | None = None,
 ) -> list[dict[str, Any]]:
     """What the experiments cannot reveal, and which experiment would. With ``folds``, also
     whether the validation experiments revisit positions their training experiments
     covered (:func:`position_coverage`). With ``level_floors`` (by experiment name: how
     many noise floors a 1 % run-to-run friction level change moves it,
     :func:`~nanostage.diagnosis.scatter.level_floors`), the advice on repeats names the
-    experiments whose gap such scatter can dominate."""
+    experiments whose gap such scatter can dominate. With ``validation_gap_m2`` (by
+    validation experiment: the sum of squares of its gap before), whether one experiment
+    holds more than :data:`MAX_VALIDATION_SHARE` of it, so that the candidates
+    (``results``, best first) are judged on that experiment alone."""
     advice: list[dict[str, Any]] = []
+    total_m2 = sum((validation_gap_m2 or {}).values())
+    if validation_gap_m2 and len(validation_gap_m2) > 1 and total_m2 > 0.0:
+        name, top_m2 = max(validation_gap_m2.items(), key=lambda kv: kv[1])
+        if top_m2 > MAX_VALIDATION_SHARE * total_m2:
+            advice.append(
+                {
+                    "effects": [r.effect for r in results[:3]],
+                    "issue": f"{name} holds {top_m2 / total_m2:.0%} of the validation gap "
+                    f"before (of {len(validation_gap_m2)} validation experiments): the "
+                    "candidates are ranked and tested on that one experiment, so its "
+                    "run-to-run scatter and its own conditions (a slew at the amplifier's "
+                    "limit, say) decide between them",
+                    "experiment": "validate on more experiments with gaps of their own (one "
+                    f"of each kind the training has: step, ramp, micro-step, reversal), and "
+                    f"repeat {name} 3–5 times",
+                }
+            )
     moves = [m for e in experiments for m in _moves(e)]
     signs = {math.copysign(1.0, m[2]) for m in moves if m[2] != 0}
     if len(signs) <= 1:
@@ -865,6 +889,9 @@ def assemble_report(
             penalty,
             folds,
             level_floors=out.get("level_floors"),
+            validation_gap_m2={
+                n: float(v["sum_sq_m2"]) for n, v in before["per_experiment"].items()
+            },
         ),
         "level_scatter": out.get("level_scatter"),
         "level_floors": dict(out.get("level_floors") or {}),
