@@ -250,7 +250,7 @@ def experiment_advice(
                     "run-to-run scatter and its own conditions (a slew at the amplifier's "
                     "limit, say) decide between them",
                     "experiment": "validate on more experiments with gaps of their own (one "
-                    f"of each kind the training has: step, ramp, micro-step, reversal), and "
+                    "of each kind the training has: step, ramp, micro-step, reversal), and "
                     f"repeat {name} 3–5 times",
                 }
             )
