@@ -909,6 +909,17 @@ def _describe(pid: int) -> str:
     return f"process {pid}: " + "; ".join(lines)
 
 
+def _pids_written(
+    path: Path, proc: subprocess.Popen[bytes], log: Path, deadline: float
+) -> list[int]:
+    """The process ids a script writes to ``path`` once its processes have started."""
+    while not (path.exists() and path.read_text(encoding="utf-8").strip()):
+        assert proc.poll() is None, log.read_text(encoding="utf-8")
+        assert time.monotonic() < deadline, f"the script wrote no {path.name}"
+        time.sleep(0.05)
+    return [int(p) for p in path.read_text(encoding="utf-8").split()]
+
+
 def _threads(pid: int) -> int:
     return len(list(Path(f"/proc/{pid}/task").iterdir()))
 
@@ -935,11 +946,7 @@ def test_pool_workers_exit_with_the_campaign_process(
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 120
-        while not (pids_file.exists() and pids_file.read_text(encoding="utf-8").strip()):
-            assert proc.poll() is None, log.read_text(encoding="utf-8")
-            assert time.monotonic() < deadline, "the pool did not start"
-            time.sleep(0.05)
-        workers = [int(p) for p in pids_file.read_text(encoding="utf-8").split()]
+        workers = _pids_written(pids_file, proc, log, deadline)
         assert len(workers) == 2 and all(_alive(p) for p in workers)
         # A worker watches its parent from its first chunk on, in a thread of its own: wait
         # until both have one. (CPU time alone does not tell: unpickling the first chunk's
@@ -1016,12 +1023,7 @@ def test_a_worker_that_takes_a_chunk_after_the_campaign_process_died_exits(
         )
     worker = sibling = 0
     try:
-        deadline = time.monotonic() + 120
-        while not (pid_file.exists() and pid_file.read_text(encoding="utf-8").strip()):
-            assert proc.poll() is None, log.read_text(encoding="utf-8")
-            assert time.monotonic() < deadline, "the worker did not start"
-            time.sleep(0.05)
-        worker, sibling = (int(p) for p in pid_file.read_text(encoding="utf-8").split())
+        worker, sibling = _pids_written(pid_file, proc, log, time.monotonic() + 120)
         proc.kill()
         proc.wait(timeout=60)
         assert _alive(worker)
