@@ -310,6 +310,10 @@ ERROR_CASES: list[tuple[list[str], list[str]]] = [
         ["diagnose-benchmark", "--seed", "-1", "--out", "{tmp}/b"],
         ["--seed", "seed = -1", "[0, 4294967295]"],
     ),
+    (
+        ["diagnose-benchmark", "--level-scatter", "0.3", "--out", "{tmp}/b"],
+        ["--level-scatter", "level_scatter = 0.3", "[0, 0.2]"],
+    ),
     (["tune", "--trials", "0", "--out", "{tmp}/t"], ["--trials", "n_trials = 0", "[1, 100000]"]),
     (["tune", "--step-um", "-100", "--out", "{tmp}/t"], ["--step-um", "step_m = -", "(0, 1] m"]),
     (["tune", "--eval-trials", "0", "--out", "{tmp}/t"], ["--eval-trials", "eval_trials = 0"]),

@@ -281,6 +281,9 @@ def test_benchmark_checks_its_truth_family_before_any_work(tmp_path: Path) -> No
         run_benchmark(tmp_path / "x", truth="independent", hidden=["computation_delay"])
     with pytest.raises(ConfigError, match="truth family 'own'"):
         run_benchmark(tmp_path / "x", hidden=["amplifier_dynamics"])
+    for bad in (-0.01, 0.5, math.nan, True, "0.01"):
+        with pytest.raises(ConfigError, match=r"level_scatter = .* \[0, 0.2\]"):
+            run_benchmark(tmp_path / "x", level_scatter=bad)  # type: ignore[arg-type]
     assert not (tmp_path / "x").exists()
 
 

@@ -1353,9 +1353,10 @@ def qmc_rows(n: int, seed: int) -> np.ndarray:
 
 
 def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) -> None:
-    """One blind case end to end (a hidden offset force, the full design, fast settings):
-    the row and the summary carry the shrink of the truth's deterministic model, which for a
-    large effect removes nearly all the gap, and the files are written."""
+    """One blind case end to end (a hidden offset force, the full design, fast settings,
+    an assumed run-to-run level scatter): the row and the summary carry the shrink of the
+    truth's deterministic model, which for a large effect removes nearly all the gap, and
+    the files are written; the scatter is in the case's manifest and the diagnosis used it."""
     s = run_benchmark(
         tmp_path,
         cases=1,
@@ -1364,7 +1365,13 @@ def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) ->
         settings=dc.replace(FAST, forward_rounds=1),
         progress=False,
         truth_check=False,
+        level_scatter=0.01,
     )
+    assert s["level_scatter"] == 0.01
+    case = tmp_path / "case00_offset_force"
+    assert "level_scatter = 0.01\n" in (case / "manifest.toml").read_text(encoding="utf-8")
+    report = json.loads((case / "report" / "report.json").read_text(encoding="utf-8"))
+    assert report["level_scatter"]["spread"] == 0.01
     (row,) = s["rows"]
     assert row["hidden"] == "offset_force"
     assert row["oracle_rms_m"] < 0.2 * row["gap_before_rms_m"]
@@ -1376,4 +1383,6 @@ def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) ->
         ]
         == (row["oracle_shrink"])
     )
-    assert "truth's shrink" in (tmp_path / "benchmark.md").read_text(encoding="utf-8")
+    md = (tmp_path / "benchmark.md").read_text(encoding="utf-8")
+    assert "truth's shrink" in md
+    assert "seed 3, diagnosed with a run-to-run friction level scatter of 0.01." in md

@@ -352,6 +352,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         truth_check=not args.no_truth_check,
         truth=args.truth,
+        level_scatter=args.level_scatter,
     )
     detect = (
         ""
@@ -700,13 +701,24 @@ def _build_parser() -> argparse.ArgumentParser:
         help="truth family of the cases: nanostage's own core and effects (own), or a "
         "simulator written without nanostage's models (independent); default own",
     )
+    bm.add_argument(
+        "--level-scatter",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="diagnose every case with this run-to-run friction level scatter (relative, "
+        "1 sigma, e.g. 0.01; written into each case's manifest); default 0: left out",
+    )
     bm.add_argument("--quiet", action="store_true", help="no per-case lines")
     bm.add_argument(
         "--no-truth-check",
         action="store_true",
         help="skip the truth-started check of each case (is the hidden effect detectable?)",
     )
-    bm.set_defaults(func=_benchmark, options={"cases": "--cases", "seed": "--seed"})
+    bm.set_defaults(
+        func=_benchmark,
+        options={"cases": "--cases", "seed": "--seed", "level_scatter": "--level-scatter"},
+    )
     pr = sub.add_parser("predict", help="simulate an identified model for given inputs")
     pr.add_argument("manifest", help="TOML manifest (see nanostage.diagnosis.predict)")
     pr.add_argument("--out", default="prediction", help="output directory")

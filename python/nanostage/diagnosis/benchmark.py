@@ -54,6 +54,7 @@ from .candidates import motor_static_force_n
 from .case_manifest import case_manifest_head
 from .manifest import load_manifest
 from .run import diagnose, model_gap
+from .scatter import MAX_LEVEL_SCATTER
 from .settings import DiagnosisSettings
 from .traces import write_trace_csv
 
@@ -348,11 +349,13 @@ def generate_case(
     *,
     level_spread: float = 0.005,
     design: Sequence[Design] = DESIGN,
+    level_scatter: float = 0.0,
 ) -> tuple[Path, dict[str, Any]]:
     """Write one case's traces and manifest into ``out_dir``; returns the manifest path and
     the truth (hidden effect, its parameters, the perturbed nominal values). ``design``: the
     experiments (default `DESIGN`; ``benches/diagnosis_speed.py`` times a 10-experiment
-    subset, `SPEED_DESIGN`)."""
+    subset, `SPEED_DESIGN`); ``level_scatter``: the manifest's ``[diagnosis]`` setting (0:
+    not written)."""
     truth, info, rng = draw_truth(hidden, seed, level_spread=level_spread)
     p = presets.seed(1e-3).plant
     assert isinstance(p, Plant)
@@ -363,7 +366,7 @@ def generate_case(
     # Coulomb torques (the truth perturbs all three). Where the bounds overlap, a Coulomb
     # torque above the static one is an invalid model, which the fit treats as a bad fit.
     tc0, ts0 = mf.coulomb_torque_nm, mf.static_torque_nm
-    lines = case_manifest_head(fc0, ts0, tc0, seed)
+    lines = case_manifest_head(fc0, ts0, tc0, seed, level_scatter=level_scatter)
     q = truth.encoder.count_m
     for i, (steps, x0, dwells, role, gains, hold) in enumerate(design):
         ref = design_reference(steps, x0, dwells, hold_s=hold)
@@ -454,6 +457,7 @@ def run_benchmark(
     progress: bool = True,
     truth_check: bool = True,
     truth: str = "own",
+    level_scatter: float = 0.0,
 ) -> dict[str, Any]:
     """Generate ``cases`` cases (hidden effects cycled through ``hidden``, parameters random
     from ``seed``), diagnose each from its files alone, score, and write ``benchmark.json``
@@ -466,6 +470,12 @@ def run_benchmark(
     recorded, a 12-experiment design; its experiments are simulated in one spawned process
     per CPU). The truth's own model and the truth-started check
     exist for the own family only (the independent truth is not a nanostage model).
+
+    ``level_scatter`` (relative, 1σ; 0 leaves it out) is written into every case's manifest
+    as the diagnosis's run-to-run friction level scatter
+    (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.level_scatter`), and replaces
+    that of given ``settings``: the benchmark scores the diagnosis as a user who assumes
+    that scatter would run it.
 
     With ``truth_check`` each case with an effect is also diagnosed with only the candidates
     that count as finding it, started from the truth's values (:func:`truth_starts`), one
@@ -482,14 +492,24 @@ def run_benchmark(
     ------
     ConfigError
         ``cases`` not an integer in [1, :data:`MAX_CASES`], ``seed`` not one in
-        [0, :data:`MAX_SEED`], an unknown ``truth`` family, or a name in ``hidden`` that
-        the family does not draw.
+        [0, :data:`MAX_SEED`], an unknown ``truth`` family, a name in ``hidden`` that
+        the family does not draw, or ``level_scatter`` not a number in
+        [0, :data:`~nanostage.diagnosis.scatter.MAX_LEVEL_SCATTER`].
     OutputError
         ``out_dir`` cannot be used (an existing file, a folder of other files, not writable).
     """
     for name, value, lo, hi in (("cases", cases, 1, MAX_CASES), ("seed", seed, 0, MAX_SEED)):
         if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
             raise ConfigError(f"{name} = {value!r} is invalid: expected an integer in [{lo}, {hi}]")
+    if (
+        isinstance(level_scatter, bool)
+        or not isinstance(level_scatter, int | float)
+        or not 0.0 <= level_scatter <= MAX_LEVEL_SCATTER
+    ):
+        raise ConfigError(
+            f"level_scatter = {level_scatter!r} is invalid: expected a relative friction "
+            f"level scatter in [0, {MAX_LEVEL_SCATTER}] (0 leaves it out)"
+        )
     if truth not in TRUTH_FAMILIES:
         raise ConfigError(
             f"truth = {truth!r} is invalid: expected one of {', '.join(TRUTH_FAMILIES)}"
@@ -514,6 +534,7 @@ def run_benchmark(
             truth_check=truth_check and truth == "own",
             final=Path(out_dir).expanduser().absolute(),
             truth=truth,
+            level_scatter=float(level_scatter),
         )
 
 
@@ -528,6 +549,7 @@ def _run_benchmark(
     truth_check: bool,
     final: Path,
     truth: str = "own",
+    level_scatter: float = 0.0,
 ) -> dict[str, Any]:
     """The cases, written into the staging folder ``out``; reports name the manifests at
     their place in the ``final`` folder."""
@@ -541,15 +563,24 @@ def _run_benchmark(
         h = names[c % len(names)]
         case_dir = out / f"case{c:02d}_{h}"
         manifest, drawn = (
-            generate_case(h, seed * 10_000 + c, case_dir)
+            generate_case(h, seed * 10_000 + c, case_dir, level_scatter=level_scatter)
             if own
             else independent_truth.write_case(
-                h, seed * 10_000 + c, case_dir, workers=os.cpu_count() or 1
+                h,
+                seed * 10_000 + c,
+                case_dir,
+                workers=os.cpu_count() or 1,
+                level_scatter=level_scatter,
             )
         )
         t = time.perf_counter()
-        # Given settings keep the case's own random seed (the manifest's), as the defaults do.
-        st = dc.replace(settings, seed=seed * 10_000 + c) if settings else None
+        # Given settings keep the case's own random seed and scatter (the manifest's), as
+        # the defaults do.
+        st = (
+            dc.replace(settings, seed=seed * 10_000 + c, level_scatter=level_scatter)
+            if settings
+            else None
+        )
         d = diagnose(
             manifest,
             case_dir / "report",
@@ -567,7 +598,13 @@ def _run_benchmark(
         ok_tie = ok or bool(tied & accept.get(h, {h}))
         seconds = time.perf_counter() - t
         check = (
-            _truth_check(h, manifest, drawn, settings, seed * 10_000 + c)
+            _truth_check(
+                h,
+                manifest,
+                drawn,
+                st or DiagnosisSettings(level_scatter=level_scatter),
+                seed * 10_000 + c,
+            )
             if truth_check and h != "none"
             else None
         )
@@ -634,6 +671,7 @@ def _run_benchmark(
         "cases": cases,
         "seed": seed,
         "truth": truth,
+        "level_scatter": level_scatter,
         "top1": float(np.mean([r["correct"] for r in eff])) if eff else math.nan,
         "top1_up_to_ties": float(np.mean([r["correct_up_to_tie"] for r in eff]))
         if eff
@@ -662,7 +700,13 @@ def _run_benchmark(
     md = [
         "# Diagnosis blind benchmark",
         "",
-        f"{cases} cases of the {truth} truth family, seed {seed}. Top-1 "
+        f"{cases} cases of the {truth} truth family, seed {seed}"
+        + (
+            f", diagnosed with a run-to-run friction level scatter of {level_scatter:.3g}"
+            if level_scatter > 0.0
+            else ""
+        )
+        + ". Top-1 "
         f"{summary['top1']:.0%} (counting a truth the report names as indistinguishable "
         f"from the first selection: "
         f"{summary['top1_up_to_ties']:.0%}), false alarms "

@@ -34,11 +34,13 @@ def case_manifest_head(
     seed: int,
     *,
     also_free: Mapping[str, tuple[float, float, float]] | None = None,
+    level_scatter: float = 0.0,
 ) -> list[str]:
     """The manifest's ``[model]``, ``[model.bounds]`` and ``[diagnosis]`` lines (one per list
     item, ending with an empty line): the Dahl level and the motor map's static and Coulomb
     torques are free, within bounds around the given nominal values; ``also_free`` adds
-    ``path → (nominal value, lower factor, upper factor)``."""
+    ``path → (nominal value, lower factor, upper factor)``; ``level_scatter`` > 0 is written
+    as the diagnosis's run-to-run friction level scatter (relative, 1σ)."""
     fc0, ts0, tc0 = dahl_coulomb_force_n, static_torque_nm, coulomb_torque_nm
     bounds = {
         "plant.dahl.coulomb_force_n": (0.6 * fc0, 1.5 * fc0),
@@ -60,5 +62,6 @@ def case_manifest_head(
         "[diagnosis]",
         'candidates = "all"',
         f"seed = {seed}",
+        *([f"level_scatter = {level_scatter!r}"] if level_scatter > 0.0 else []),
         "",
     ]

@@ -654,10 +654,12 @@ def write_case(
     *,
     design: Sequence[DesignedExperiment] | None = None,
     workers: int = 1,
+    level_scatter: float = 0.0,
 ) -> tuple[Path, dict[str, Any]]:
     """Draw a truth, simulate the design and write ``manifest.toml``, one CSV trace per
     experiment (``time_s, reference_m, position_m, command_v``) and ``truth.json`` into
-    ``out_dir``; returns the manifest path and the truth record.
+    ``out_dir``; returns the manifest path and the truth record. ``level_scatter``: the
+    manifest's ``[diagnosis]`` setting (0: not written).
 
     ``workers`` > 1 simulates the experiments in that many spawned processes (each
     experiment has its own random stream, so the files are the same to the last bit)."""
@@ -684,7 +686,7 @@ def write_case(
         path: (SEED[seed_key[path]], lo, hi)
         for path, (lo, hi) in UNCERTAIN_MOTOR_AND_INERTIA.items()
     }
-    lines = case_manifest_head(fc0, ts0, tc0, seed, also_free=also)
+    lines = case_manifest_head(fc0, ts0, tc0, seed, also_free=also, level_scatter=level_scatter)
     jobs = [(truth, e.reference_m, e.gains, seed * 1000 + i) for i, e in enumerate(exps)]
     if workers > 1 and len(jobs) > 1:
         ctx = multiprocessing.get_context("spawn")
