@@ -1,5 +1,5 @@
-"""Run-to-run friction scatter in the diagnosis's gap: the level factor, the sample weights
-and the weighted fit residuals."""
+"""Run-to-run friction scatter in the diagnosis's gap: the level factor, the level
+directions and the fit residuals whitened by one level draw per run."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 from diagnosis_cases import simulated_experiment, step_case
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from nanostage import presets
 from nanostage.config import get_path, replace_paths
@@ -23,8 +25,9 @@ from nanostage.diagnosis.scatter import (
     MAX_LEVEL_SCATTER,
     SMOOTHING_SAMPLES,
     _smoothed,
+    discount_level,
     level_floors,
-    level_scatter_weights,
+    level_scatter_directions,
     level_sensitivities,
     with_friction_level,
 )
@@ -66,7 +69,7 @@ def test_friction_level_factor_scales_every_level_as_the_parameters_do() -> None
             with_friction_level(s, bad)
 
 
-def test_sample_weights_count_each_sample_by_how_far_the_scatter_moves_it() -> None:
+def test_level_directions_are_the_unit_sensitivities_with_their_discount() -> None:
     s = presets.seed(1e-3)
     long_step = _step(s, 1e-3, "long")
     small = _step(s, 100e-6, "small", start_m=5e-3)
@@ -74,35 +77,70 @@ def test_sample_weights_count_each_sample_by_how_far_the_scatter_moves_it() -> N
     rep_b = _step(s, 500e-6, "rep_b", start_m=10e-3, seed=3)
     exps = [long_step, small, rep_a, rep_b]
     floors = experiment_floors_m(exps, Q)
-    cmd_floors = {n: 0.01 for n in floors}
+    cw = {n: 1e-4 for n in floors}
     systems = {e.name: s for e in exps}
     sens = level_sensitivities(exps, systems)
-    sc = level_scatter_weights(exps, sens, floors, cmd_floors, Q, 0.03)
+    sc = level_scatter_directions(exps, sens, floors, cw, Q, 0.03)
     assert sc.spread == 0.03
-    # The repeated pair keeps weight 1: its floor holds the scatter already.
+    # The repeated pair is left as it is: its floor holds the scatter already.
     assert sorted(sc.repeated) == ["rep_a", "rep_b"]
-    assert "rep_a" not in sc.weights and "rep_b" not in sc.weights
-    wp, wc = sc.weights["long"]
-    assert wc is not None and len(wp) == len(long_step.time_s) == len(wc)
-    assert np.all((wp > 0.0) & (wp <= 1.0)) and np.all((wc > 0.0) & (wc <= 1.0))
-    # By hand: f / √(f² + (σ·J)²) with J the change per unit of relative level, averaged
-    # over SMOOTHING_SAMPLES.
-    ((r0, _), (r1, _)) = simulate_readings_and_commands(
+    assert set(sc.directions) == {"long", "small"}
+    # By hand: u stacks J of the reading and the weighted J of the command, J the change
+    # per unit of relative level averaged over SMOOTHING_SAMPLES; s = σ·|u|/f.
+    ((r0, c0), (r1, c1)) = simulate_readings_and_commands(
         [s, with_friction_level(s, 1.0 + LEVEL_STEP)], [long_step] * 2
     )
-    j = _smoothed((r1 - r0) / LEVEL_STEP)
-    f = floors["long"]
-    assert np.allclose(wp, f / np.sqrt(f**2 + (0.03 * j) ** 2), rtol=1e-12, atol=0.0)
-    # Before the move the level moves nothing (weight 1); in the slew of the long step a
-    # 3 % level moves the reading by many floors.
-    assert np.all(wp[: 20 - SMOOTHING_SAMPLES // 2] == 1.0)
-    assert float(np.min(wp)) < 0.2
-    # A larger scatter weighs every sample at most as much.
-    wider = level_scatter_weights(exps, sens, floors, cmd_floors, Q, 0.1)
-    assert np.all(wider.weights["long"][0] <= wp)
+    u = np.concatenate(
+        [_smoothed((r1 - r0) / LEVEL_STEP), 1e-4 * _smoothed((c1 - c0) / LEVEL_STEP)]
+    )
+    unit, keep = sc.directions["long"]
+    assert len(unit) == 2 * len(long_step.time_s)
+    assert np.allclose(unit, u / np.linalg.norm(u), rtol=0.0, atol=1e-12)
+    s_long = 0.03 * float(np.linalg.norm(u)) / floors["long"]
+    assert sc.level_floors["long"] == pytest.approx(s_long, rel=1e-12)
+    assert keep == pytest.approx(1.0 / np.sqrt(1.0 + s_long**2), rel=1e-12)
+    # A 3 % level moves the slew of a 1 mm step by many floors: its component is nearly
+    # all discounted; a larger scatter discounts every experiment at least as much.
+    assert keep < 0.05
+    wider = level_scatter_directions(exps, sens, floors, cw, Q, 0.1)
+    for n, (_, k) in sc.directions.items():
+        assert wider.directions[n][1] < k
+    # Without the command in the gap the direction is the reading's alone.
+    pos_only = level_scatter_directions(exps, sens, floors, {}, Q, 0.03)
+    assert len(pos_only.directions["long"][0]) == len(long_step.time_s)
+    d = sc.to_dict()
+    assert d["spread"] == 0.03 and d["repeated"] == ["rep_a", "rep_b"]
+    assert d["discounted"]["long"] == {"level_floors": s_long, "kept": keep}  # type: ignore[index]
     for bad in (0.0, -0.01, MAX_LEVEL_SCATTER * 1.01, float("nan")):
         with pytest.raises(ValueError, match="level_scatter"):
-            level_scatter_weights(exps, sens, floors, cmd_floors, Q, bad)
+            level_scatter_directions(exps, sens, floors, cw, Q, bad)
+
+
+@given(
+    st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=12),
+    st.floats(0.0, 50.0),
+    st.integers(0, 2**32 - 1),
+)
+@settings(max_examples=60, deadline=None)
+def test_discounting_the_level_whitens_by_one_level_draw(
+    raw: list[float], s: float, seed: int
+) -> None:
+    """Its sum of squares is the gap's Mahalanobis norm under the covariance f²·I + σ²·u·uᵀ
+    (times f²), computed here with a dense inverse; the components orthogonal to u stay."""
+    u = np.asarray(raw)
+    assume(float(np.linalg.norm(u)) > 1e-3)
+    n = len(u)
+    f = 2.0
+    sigma = s * f / float(np.linalg.norm(u))
+    unit, keep = u / np.linalg.norm(u), 1.0 / np.sqrt(1.0 + s * s)
+    r = np.random.default_rng(seed).normal(size=n)
+    w = discount_level(r, (unit, keep))
+    cov = f**2 * np.eye(n) + sigma**2 * np.outer(u, u)
+    assert float(w @ w) == pytest.approx(f**2 * float(r @ np.linalg.solve(cov, r)), rel=1e-9)
+    ortho = r - float(unit @ r) * unit
+    assert np.allclose(w - float(unit @ w) * unit, ortho, rtol=0.0, atol=1e-12)
+    with pytest.raises(ValueError, match="samples"):
+        discount_level(r[:-1], (unit, keep))
 
 
 def test_smoothing_is_a_centred_moving_average_shrunk_at_the_ends() -> None:
@@ -117,16 +155,16 @@ def test_smoothing_is_a_centred_moving_average_shrunk_at_the_ends() -> None:
     assert np.allclose(_smoothed(ramp)[h:-h], ramp[h:-h], rtol=0.0, atol=1e-12)
 
 
-def test_fit_residuals_are_the_gap_times_the_sample_weights() -> None:
+def test_fit_residuals_are_the_gap_with_its_level_component_discounted() -> None:
     s = presets.seed(500e-6)
     exps = [_step(s, 500e-6, "a"), _step(s, -500e-6, "b", start_m=4e-3, seed=2)]
     floors = experiment_floors_m(exps, Q)
     weights = command_weights(exps, {e.name: s for e in exps}, floors, Q, DiagnosisSettings())
     rng = np.random.default_rng(0)
-    sw = {
-        e.name: (rng.uniform(0.1, 1.0, len(e.time_s)), rng.uniform(0.1, 1.0, len(e.time_s)))
-        for e in exps
-    }
+    dirs = {}
+    for e in exps:
+        u = rng.normal(size=2 * len(e.time_s))
+        dirs[e.name] = (u / np.linalg.norm(u), float(rng.uniform(0.05, 0.9)))
     name = "plant.dahl.coulomb_force_n"
     free = [(name, Param(name=name, unit="N", lower=20.0, upper=40.0, initial=30.4))]
 
@@ -134,22 +172,17 @@ def test_fit_residuals_are_the_gap_times_the_sample_weights() -> None:
         return replace_paths(s, {name: v[0]})
 
     plain = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights)
-    weighted = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights, sw)
+    level = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights, dirs)
     other = build([33.0])
     for e, p, w in zip(
-        exps, plain.residuals(other, exps), weighted.residuals(other, exps), strict=True
+        exps, plain.residuals(other, exps), level.residuals(other, exps), strict=True
     ):
-        n = len(e.time_s)
-        wp, wc = sw[e.name]
-        assert np.array_equal(w[:n], p[:n] * wp)
-        assert np.allclose(w[n:], p[n:] * wc, rtol=1e-14, atol=0.0)
-    # Position-only weights leave the command part as it was.
-    only = FitProblem(
-        free, build, exps, 1, lambda x, e: x, None, weights, {"a": (sw["a"][0], None)}
-    )
-    pa, wa = plain.residuals(other, exps[:1])[0], only.residuals(other, exps[:1])[0]
-    n = len(exps[0].time_s)
-    assert np.array_equal(wa[n:], pa[n:])
+        unit, keep = dirs[e.name]
+        assert np.allclose(w, p + (keep - 1.0) * float(unit @ p) * unit, rtol=0.0, atol=1e-20)
+        assert float(w @ w) < float(p @ p)
+    # An experiment without a direction keeps its gap to the last bit.
+    only = FitProblem(free, build, exps, 1, lambda x, e: x, None, weights, {"a": dirs["a"]})
+    assert np.array_equal(only.residuals(other, exps)[1], plain.residuals(other, exps)[1])
 
 
 def test_level_scatter_setting_is_off_by_default() -> None:
@@ -194,8 +227,8 @@ def test_diagnosis_with_a_given_scatter_still_finds_the_asymmetry(tmp_path: Path
     r = d.report
     assert r["selected"] == ["asymmetric_friction"]
     assert r["level_scatter"]["spread"] == 0.003
-    assert set(r["level_scatter"]["weighted"]) <= {"e0", "e1", "e2", "e3"}
-    assert r["level_scatter"]["weighted"], "the 0.5 mm steps' slews are weighted"
+    assert set(r["level_scatter"]["discounted"]) <= {"e0", "e1", "e2", "e3"}
+    assert r["level_scatter"]["discounted"], "the 0.5 mm steps' slews are discounted"
     assert set(r["level_floors"]) == {"e0", "e1", "e2", "e3"}
     text = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert "**Run-to-run friction scatter:** 0.003" in text
@@ -216,6 +249,6 @@ def test_a_model_without_room_for_the_level_factor_gets_no_sensitivity() -> None
     sens = level_sensitivities([a, b], {"a": s, "b": full})
     assert set(sens) == {"a"}
     floors = experiment_floors_m([a, b], Q)
-    sc = level_scatter_weights([a, b], sens, floors, {}, Q, 0.03)
-    assert set(sc.weights) == {"a"}
+    sc = level_scatter_directions([a, b], sens, floors, {}, Q, 0.03)
+    assert set(sc.directions) == {"a"}
     assert level_sensitivities([b], {"b": full}) == {}

@@ -26,6 +26,7 @@ from .objective import (
     rms_of,
     simulate_readings_and_commands,
 )
+from .scatter import discount_level
 from .settings import FAILED_GAP_M, Adapt, DiagnosisSettings, FloatArray
 
 __all__ = [
@@ -66,13 +67,14 @@ class FitProblem:
         adapt: Adapt,
         cache: SimulationCache | None = None,
         command_weights_m_per_v: Mapping[str, float] | None = None,
-        sample_weights: Mapping[str, tuple[FloatArray, FloatArray | None]] | None = None,
+        level_directions: Mapping[str, tuple[FloatArray, float]] | None = None,
     ) -> None:
         self.params = list(params)
-        #: Per experiment (by name), the weight of each sample of the position gap and of
-        #: the command gap (None: 1), fixed for the problem; missing: every sample counts 1
-        #: (:mod:`~nanostage.diagnosis.scatter`).
-        self.sample_weights = dict(sample_weights or {})
+        #: Per experiment (by name), the direction of a run-to-run friction level change in
+        #: its gap and the factor its component along it is kept by, fixed for the problem;
+        #: missing: the gap as it is (:mod:`~nanostage.diagnosis.scatter`,
+        #: :func:`~nanostage.diagnosis.scatter.discount_level`).
+        self.level_directions = dict(level_directions or {})
         #: Weight of the command gap against the position gap per experiment (by name),
         #: m/V: with a weight > 0 the gap of an experiment with a measured command stacks
         #: the position gap (m) and the command gap (V) times the weight; 0 or missing
@@ -129,17 +131,15 @@ class FitProblem:
                 if e.name not in self._plans:
                     self._plans[e.name] = gap_plan(e.position_m, e.reference_m)
                 gap = apply_gap_plan(self._plans[e.name], e.position_m, reading)
-                w_pos, w_cmd = self.sample_weights.get(e.name, (None, None))
-                if w_pos is not None:
-                    gap = gap * w_pos
                 if self._uses_command(e):
                     assert e.command_v is not None
                     if e.name not in self._command_plans:
                         self._command_plans[e.name] = command_plan(self._plans[e.name], e.command_v)
                     cgap = apply_gap_plan(self._command_plans[e.name], e.command_v, cmd)
-                    if w_cmd is not None:
-                        cgap = cgap * w_cmd
                     gap = np.concatenate([gap, self.command_weights_m_per_v[e.name] * cgap])
+                level = self.level_directions.get(e.name)
+                if level is not None:
+                    gap = discount_level(gap, level)
                 gaps.append(gap)
                 # The command's own check (a channel the fit does not use), compared as the
                 # gap would compare it (a limit cycle's phase is no residual); None where the

@@ -29,7 +29,7 @@ from .objective import (
     proportional_gain_v_per_m,
     rms_of,
 )
-from .scatter import LevelScatter, level_floors, level_scatter_weights, level_sensitivities
+from .scatter import LevelScatter, level_floors, level_scatter_directions, level_sensitivities
 from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
 from .signatures import SignatureJudge
@@ -70,9 +70,10 @@ class _Ctx:
     #: per experiment by name (none: the command is not part of the gap;
     #: :func:`command_weights`).
     command_weights_m_per_v: Mapping[str, float] = field(default_factory=dict)
-    #: Weight of each sample of the position and the command gap, per experiment by name
-    #: (none: every sample counts 1; :mod:`~nanostage.diagnosis.scatter`).
-    sample_weights: Mapping[str, tuple[FloatArray, FloatArray | None]] = field(default_factory=dict)
+    #: The direction of a run-to-run friction level change in each experiment's gap and
+    #: the factor its component is kept by, per experiment by name (none: every gap as it
+    #: is; :mod:`~nanostage.diagnosis.scatter`).
+    level_directions: Mapping[str, tuple[FloatArray, float]] = field(default_factory=dict)
 
     def problem(
         self,
@@ -88,7 +89,7 @@ class _Ctx:
             self.adapt,
             self.cache,
             self.command_weights_m_per_v,
-            self.sample_weights,
+            self.level_directions,
         )
 
     @property
@@ -389,23 +390,23 @@ def diagnose_experiments(
     )
     scatter: LevelScatter | None = None
     if st.level_scatter > 0.0:
-        # Run-to-run friction scatter: the samples a level within it moves by many floors
-        # (long saturated slews) count less; the nominal model is calibrated again.
-        gains = {n: proportional_gain_v_per_m(ctx.adapt(nominal, e)) for n, e in every.items()}
-        scatter = level_scatter_weights(
+        # Run-to-run friction scatter: each experiment's gap allows for one level draw of
+        # its own (what a level within the scatter does to a long saturated slew no longer
+        # decides); the nominal model is calibrated again.
+        scatter = level_scatter_directions(
             list(every.values()),
             sens,
             floors,
-            command_floors_v(list(every.values()), nominal.encoder.count_m, floors, gains),
+            ctx.command_weights_m_per_v,
             nominal.encoder.count_m,
             st.level_scatter,
         )
-        if scatter.weights:
-            ctx = dataclasses.replace(ctx, sample_weights=scatter.weights)
+        if scatter.directions:
+            ctx = dataclasses.replace(ctx, level_directions=scatter.directions)
             nominal_fits, base_ms, base_cmd, base_units = _calibrate_again(
                 ctx,
                 f"diagnosis: run-to-run friction scatter {st.level_scatter:.3g} (relative "
-                f"level) weighs down samples of {len(scatter.weights)} experiment(s); "
+                f"level) allowed for in the gaps of {len(scatter.directions)} experiment(s); "
                 "calibrating again",
                 progress,
             )
@@ -528,7 +529,7 @@ def diagnose_experiments(
         current_units = best.validation_units
     return {
         "command_weights_m_per_v": dict(ctx.command_weights_m_per_v),
-        "sample_weights": dict(ctx.sample_weights),
+        "level_directions": dict(ctx.level_directions),
         "level_scatter": None if scatter is None else scatter.to_dict(),
         # A 1 % friction level change in units of each experiment's noise floor.
         "level_floors": level_floors(sens, floors),
@@ -776,7 +777,7 @@ def crossfit_models(
     settings: DiagnosisSettings,
     cache: SimulationCache | None = None,
     command_weights_m_per_v: Mapping[str, float] | None = None,
-    sample_weights: Mapping[str, tuple[FloatArray, FloatArray | None]] | None = None,
+    level_directions: Mapping[str, tuple[FloatArray, float]] | None = None,
 ) -> list[tuple[list[Experiment], System, System]]:
     """Cross-fitting of the nominal and the selected model over the validation experiments:
     for each fold of :func:`crossfit_folds`, both models are refitted (one local fit from
@@ -788,8 +789,8 @@ def crossfit_models(
     recalibrate before using the model: the gap they leave is the shrink to expect then.
     With ``cache`` (the diagnosis's), the folds' shared simulations (the first Jacobian at
     the common warm start, on the experiments the folds have in common) are looked up. The
-    fits use the command and weigh the samples as the diagnosis did
-    (``command_weights_m_per_v``, ``sample_weights``)."""
+    fits use the command and allow for the level scatter as the diagnosis did
+    (``command_weights_m_per_v``, ``level_directions``)."""
     exps = list(train) + list(validate)
     nf = len(free)
 
@@ -825,7 +826,7 @@ def crossfit_models(
             adapt,
             cache,
             command_weights_m_per_v,
-            sample_weights,
+            level_directions,
         )
 
     jobs = []

@@ -473,11 +473,11 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
         lines.append(text)
     scatter = report.get("level_scatter")
     if isinstance(scatter, Mapping) and _num(scatter.get("spread")) is not None:
-        weighted = scatter.get("weighted") or {}
+        discounted = scatter.get("discounted") or {}
         lines.append(
             f"- **Run-to-run friction scatter:** {float(scatter['spread']):.3g} (relative "
-            f"level, given); the gap's samples in {len(weighted)} experiment(s) count by how "
-            "far a level within it moves them (the gaps shown are unweighted)"
+            f"level, given); in {len(discounted)} experiment(s) the fits and judgements "
+            "allow each run a level of its own within it (the gaps shown are as measured)"
         )
     un_gap = report.get("unexplained")
     if isinstance(un_gap, Mapping) and _num(un_gap.get("gap_rms_m")) is not None:

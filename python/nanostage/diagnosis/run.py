@@ -775,7 +775,7 @@ def _crossfit(
         settings=st,
         cache=out["cache"],
         command_weights_m_per_v=out["command_weights_m_per_v"],
-        sample_weights=out["sample_weights"],
+        level_directions=out["level_directions"],
     )
     # Both models of every fold in one batch: the judged experiments once with the nominal
     # refit, once with the selected one.

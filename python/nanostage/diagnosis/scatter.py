@@ -12,23 +12,28 @@ single long step can decide between candidates on what is noise.
 
 With :attr:`~.settings.DiagnosisSettings.level_scatter` ``σ`` (the relative run-to-run
 level scatter, 1σ, which the user knows from repeated runs of the machine or assumes), this
-module turns it into a weight per sample:
+module makes each experiment's gap allow for one level draw of its own:
 
 1. **Level sensitivity.** The calibrated model is simulated again with every friction level
    raised by :data:`LEVEL_STEP` (:func:`with_friction_level`: the core's level factor, the
    same one its stochastic friction draws per run); ``J(t)`` is the change of the reading
    and of the command per unit of relative level.
-2. **Weights.** Each sample of an experiment whose kind has no repeats counts with weight
-   ``f / √(f² + (σ·J(t))²)`` (``f`` the experiment's floor in that channel): 1 where the
-   level does not matter (holds, micro-steps), small where a level within the scatter
-   moves the trace by many floors (a long saturated slew, a stick-slip phase that a small
-   level change shifts). Experiments of a kind with repeats keep weight 1: their floor
-   already holds the scatter.
+2. **Level direction.** In an experiment's gap ``r`` (position samples, then the weighted
+   command samples where the gap has the command) one run's level moves the trace along
+   ``u = J`` (stacked the same way), by ``δ·u`` with ``δ`` drawn once per run. The gap's
+   covariance is then ``f²·I + σ²·u·uᵀ`` (``f`` the experiment's floor), not the sensor's
+   ``f²·I`` alone: the scatter moves all the samples of a run together, along one
+   direction. Whitening by it (Sherman–Morrison) keeps every component of ``r`` but the
+   one along ``û = u/|u|``, which it keeps by ``1/√(1 + s²)``, ``s = σ·|u|/f``
+   (:func:`discount_level`). A long saturated step, whose slew a 1 % level change moves by
+   many floors, no longer decides on what one run's level does; what an effect does to
+   the same slew apart from a level change still counts in full. Experiments of a kind
+   with repeats are left as they are: their floor already holds the scatter.
 
-The weights are fixed once per diagnosis (from the calibrated nominal model), so every fit
-stays a weighted least-squares problem and every judgement (validation gap, significance,
-bootstrap) weighs the samples alike. The report's gaps (before, after, per segment) stay
-unweighted, in metres.
+The directions are fixed once per diagnosis (from the calibrated nominal model), so every
+fit stays a least-squares problem and every judgement (validation gap, significance,
+bootstrap) uses the same whitened gaps. The report's gaps (before, after, per segment) stay
+as measured, in metres.
 
 Estimating ``σ`` from the experiments themselves (each experiment's gap projected on its
 ``J``) was tried and does not work sample by sample: where stick-slip makes the response
@@ -38,6 +43,7 @@ errors project on ``J`` as much as the scatter does.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -57,8 +63,9 @@ __all__ = [
     "LEVEL_STEP",
     "MAX_LEVEL_SCATTER",
     "LevelScatter",
+    "discount_level",
     "level_floors",
-    "level_scatter_weights",
+    "level_scatter_directions",
     "level_sensitivities",
     "with_friction_level",
 ]
@@ -99,29 +106,47 @@ def with_friction_level(system: System, factor: float) -> System:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LevelScatter:
-    """The run-to-run friction scatter estimated from a diagnosis's experiments."""
+    """How a given run-to-run friction scatter enters a diagnosis's gaps (module doc)."""
 
-    #: ``σ``: the relative level scatter, 1σ (0 when nothing could be estimated).
+    #: ``σ``: the relative level scatter, 1σ.
     spread: float
-    #: Per experiment (by name) with weights below 1: the weight of each sample of the
-    #: position gap, and of the command gap (None without a measured command).
-    weights: Mapping[str, tuple[FloatArray, FloatArray | None]] = field(default_factory=dict)
-    #: Experiments left at weight 1 because their kind is repeated (the floor holds the
+    #: Per experiment (by name) whose gap a level within the scatter moves: the unit vector
+    #: ``û`` of that move in the experiment's gap (the position samples, then the weighted
+    #: command samples where the gap stacks the command) and the factor ``1/√(1 + s²)``
+    #: by which the gap's component along ``û`` is kept (``s = σ·|u|/f``).
+    directions: Mapping[str, tuple[FloatArray, float]] = field(default_factory=dict)
+    #: ``s`` of each experiment in :attr:`directions`: how many noise floors a level change
+    #: of ``σ`` moves its gap (the length of the move over the floor).
+    level_floors: Mapping[str, float] = field(default_factory=dict)
+    #: Experiments left as they are because their kind is repeated (the floor holds the
     #: scatter already).
     repeated: Sequence[str] = ()
 
     def to_dict(self) -> dict[str, object]:
         return {
             "spread": self.spread,
-            "weighted": {
-                n: {
-                    "median_position_weight": float(np.median(wp)),
-                    "min_position_weight": float(np.min(wp)),
-                }
-                for n, (wp, _) in self.weights.items()
+            "discounted": {
+                n: {"level_floors": self.level_floors[n], "kept": keep}
+                for n, (_, keep) in self.directions.items()
             },
             "repeated": list(self.repeated),
         }
+
+
+def discount_level(gap: FloatArray, direction: tuple[FloatArray, float]) -> FloatArray:
+    """``gap`` with its component along the level direction ``û`` kept by the factor
+    ``keep`` (``direction = (û, keep)``, :attr:`LevelScatter.directions`): ``r + (keep −
+    1)·(û·r)·û``. Times the noise floor ``f``'s inverse it is the gap whitened by the
+    covariance ``f²·I + σ²·u·uᵀ`` of the sensor noise and one run-to-run level draw, so its
+    sum of squares is the gap's Mahalanobis norm times ``f²``."""
+    u, keep = direction
+    if len(u) != len(gap):
+        raise ValueError(
+            f"the level direction has {len(u)} samples, the gap {len(gap)}: they must be "
+            "taken from the same channels of the same experiment"
+        )
+    out: FloatArray = gap + (keep - 1.0) * float(np.dot(u, gap)) * u
+    return out
 
 
 def _smoothed(j: FloatArray) -> FloatArray:
@@ -191,20 +216,21 @@ def level_floors(
     }
 
 
-def level_scatter_weights(
+def level_scatter_directions(
     experiments: Sequence[Experiment],
     sensitivities: Mapping[str, tuple[FloatArray, FloatArray]],
     floors_m: Mapping[str, float],
-    command_floors_v: Mapping[str, float],
+    command_weights_m_per_v: Mapping[str, float],
     count_m: float,
     spread: float,
 ) -> LevelScatter:
-    """The sample weights (module doc) of ``experiments`` for a run-to-run friction level
+    """The level directions (module doc) of ``experiments`` for a run-to-run friction level
     scatter ``spread`` (relative, 1σ, in (0, :data:`MAX_LEVEL_SCATTER`]) from their level
     ``sensitivities`` (:func:`level_sensitivities`, by name). ``floors_m``: each
-    experiment's position floor, m; ``command_floors_v``: its command floor, V (0 or
-    missing: the command keeps weight 1). An experiment without a sensitivity keeps weight
-    1."""
+    experiment's position floor, m; ``command_weights_m_per_v``: the weight of its command
+    gap in its gap (:func:`~.loop.command_weights`; missing or 0: the gap has no command
+    samples). An experiment without a sensitivity, or one that a level change does not
+    move, is left as it is."""
     if not 0.0 < spread <= MAX_LEVEL_SCATTER:
         raise ValueError(
             f"level_scatter = {spread!r} is invalid: expected a relative friction level "
@@ -212,17 +238,21 @@ def level_scatter_weights(
         )
     exps = list(experiments)
     repeated = {n for a, b in repeat_pairs(exps, count_m) for n in (a.name, b.name)}
-    weights: dict[str, tuple[FloatArray, FloatArray | None]] = {}
+    directions: dict[str, tuple[FloatArray, float]] = {}
+    moved: dict[str, float] = {}
     for e in exps:
         fp = floors_m.get(e.name, 0.0)
-        if e.name in repeated or fp <= 0.0:
-            continue
-        if e.name not in sensitivities:
+        if e.name in repeated or fp <= 0.0 or e.name not in sensitivities:
             continue
         jp, jc = sensitivities[e.name]
-        wp = fp / np.sqrt(fp**2 + (spread * jp) ** 2)
-        fc = command_floors_v.get(e.name, 0.0)
-        wc = fc / np.sqrt(fc**2 + (spread * jc) ** 2) if fc > 0.0 else None
-        if float(np.min(wp)) < 1.0 or (wc is not None and float(np.min(wc)) < 1.0):
-            weights[e.name] = (wp, wc)
-    return LevelScatter(spread=spread, weights=weights, repeated=sorted(repeated))
+        cw = command_weights_m_per_v.get(e.name, 0.0)
+        u = np.concatenate([jp, cw * jc]) if cw > 0.0 and e.command_v is not None else jp
+        norm = float(np.linalg.norm(u))
+        if not norm > 0.0:
+            continue
+        s = spread * norm / fp
+        directions[e.name] = (u / norm, 1.0 / math.sqrt(1.0 + s * s))
+        moved[e.name] = s
+    return LevelScatter(
+        spread=spread, directions=directions, level_floors=moved, repeated=sorted(repeated)
+    )

@@ -73,12 +73,13 @@ class DiagnosisSettings:
     #: encoder reading of a stiff loop by a fraction of a count but its command clearly.
     command_channel: bool = True
     #: The run-to-run scatter of the friction levels (relative, 1σ; e.g. 0.02 for 2 %), for
-    #: experiments without repeats; 0 (the default) leaves it out. With it, each sample of
-    #: the gap counts by how far a level within that scatter moves it
-    #: (:mod:`~nanostage.diagnosis.scatter`): a long saturated step, whose position error a
-    #: 1 % level change makes add up over the whole move, no longer outweighs the holds,
-    #: ramps and micro-steps that carry the effects' marks. Not yet measured on fresh
-    #: benchmark seeds, so off by default.
+    #: experiments without repeats; 0 (the default) leaves it out. With it, each
+    #: experiment's gap allows for one level draw of its own: its component along the
+    #: direction a level change moves it is discounted by the scatter
+    #: (:mod:`~nanostage.diagnosis.scatter`), so a long saturated step, whose position
+    #: error a 1 % level change makes add up over the whole move, no longer outweighs the
+    #: holds, ramps and micro-steps that carry the effects' marks. Not yet measured on
+    #: fresh benchmark seeds, so off by default.
     level_scatter: float = 0.0
     forward_rounds: int = 3
     forward_top: int = 8
