@@ -97,7 +97,7 @@ def test_level_directions_are_the_unit_sensitivities_with_their_discount() -> No
     assert len(unit) == 2 * len(long_step.time_s)
     assert np.allclose(unit, u / np.linalg.norm(u), rtol=0.0, atol=1e-12)
     s_long = 0.03 * float(np.linalg.norm(u)) / floors["long"]
-    assert sc.level_floors["long"] == pytest.approx(s_long, rel=1e-12)
+    assert sc.scatter_floors["long"] == pytest.approx(s_long, rel=1e-12)
     assert keep == pytest.approx(1.0 / np.sqrt(1.0 + s_long**2), rel=1e-12)
     # A 3 % level moves the slew of a 1 mm step by many floors: its component is nearly
     # all discounted; a larger scatter discounts every experiment at least as much.
@@ -110,7 +110,7 @@ def test_level_directions_are_the_unit_sensitivities_with_their_discount() -> No
     assert len(pos_only.directions["long"][0]) == len(long_step.time_s)
     d = sc.to_dict()
     assert d["spread"] == 0.03 and d["repeated"] == ["rep_a", "rep_b"]
-    assert d["discounted"]["long"] == {"level_floors": s_long, "kept": keep}  # type: ignore[index]
+    assert d["discounted"]["long"] == {"scatter_floors": s_long, "kept": keep}  # type: ignore[index]
     for bad in (0.0, -0.01, MAX_LEVEL_SCATTER * 1.01, float("nan")):
         with pytest.raises(ValueError, match="level_scatter"):
             level_scatter_directions(exps, sens, floors, cw, Q, bad)

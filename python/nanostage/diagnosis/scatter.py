@@ -117,7 +117,7 @@ class LevelScatter:
     directions: Mapping[str, tuple[FloatArray, float]] = field(default_factory=dict)
     #: ``s`` of each experiment in :attr:`directions`: how many noise floors a level change
     #: of ``σ`` moves its gap (the length of the move over the floor).
-    level_floors: Mapping[str, float] = field(default_factory=dict)
+    scatter_floors: Mapping[str, float] = field(default_factory=dict)
     #: Experiments left as they are because their kind is repeated (the floor holds the
     #: scatter already).
     repeated: Sequence[str] = ()
@@ -126,7 +126,7 @@ class LevelScatter:
         return {
             "spread": self.spread,
             "discounted": {
-                n: {"level_floors": self.level_floors[n], "kept": keep}
+                n: {"scatter_floors": self.scatter_floors[n], "kept": keep}
                 for n, (_, keep) in self.directions.items()
             },
             "repeated": list(self.repeated),
@@ -254,5 +254,5 @@ def level_scatter_directions(
         directions[e.name] = (u / norm, 1.0 / math.sqrt(1.0 + s * s))
         moved[e.name] = s
     return LevelScatter(
-        spread=spread, directions=directions, level_floors=moved, repeated=sorted(repeated)
+        spread=spread, directions=directions, scatter_floors=moved, repeated=sorted(repeated)
     )
