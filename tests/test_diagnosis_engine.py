@@ -71,7 +71,7 @@ from nanostage.diagnosis.run import (
     ties_of_selected,
 )
 from nanostage.diagnosis.select import CandidateResult, log_occam_factor, pick_winner
-from nanostage.diagnosis.settings import DiagnosisSettings, with_starts
+from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
 from nanostage.effects import (
     EFFECT_NAMES,
     DwellStaticFriction,
@@ -726,10 +726,13 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
     assert indistinguishable(best, same) and indistinguishable(same, best)
     assert not indistinguishable(best, worse)
     rounds = [[best, same, noisy_but_insignificant, worse]]
-    assert ties_of_selected(rounds, ["asymmetric_friction"]) == {
-        "asymmetric_friction": ["offset_force"]
-    }
-    assert ties_of_selected(rounds, []) == {}
+    for ranking in RANKINGS:
+        assert indistinguishable(best, same, ranking) and indistinguishable(same, best, ranking)
+        assert not indistinguishable(best, worse, ranking)
+        assert ties_of_selected(rounds, ["asymmetric_friction"], ranking) == {
+            "asymmetric_friction": ["offset_force"]
+        }
+        assert ties_of_selected(rounds, [], ranking) == {}
     # The best single effect is the first selection's, also when another candidate of its
     # round has a smaller validation gap (a tie decided by the Occam factor); with nothing
     # selected, the smallest gap.

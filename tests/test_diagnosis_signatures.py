@@ -9,8 +9,10 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st_h
 
-from nanostage.diagnosis.select import pick_winner
+from nanostage.diagnosis.select import indistinguishable, pick_winner, rank_key
 from nanostage.diagnosis.settings import DiagnosisSettings
 from nanostage.diagnosis.signatures import Feature, distance, signatures_of
 
@@ -253,3 +255,66 @@ def test_report_names_the_signature_chi_square_of_a_tie() -> None:
     # No distances for the round: nothing said about signatures.
     report["tie_signatures"] = [{"round": 2, "distances": {"a": 1.0, "b": 2.0}}]
     assert "signature χ²" not in markdown_report(report)
+
+
+def test_the_relative_ranking_lets_every_experiment_count_by_its_own_factor() -> None:
+    # "loud" cuts a long step's gap (the first experiment, 100× the others) a little more
+    # than "quiet" does, and leaves the three quiet experiments as they were; "quiet" cuts
+    # each of those by a factor of 9 in mean square (3 in RMS).
+    loud_ms = [0.80e-12, 1.0e-14, 1.0e-14, 1.0e-14]
+    quiet_ms = [0.90e-12, 0.11e-14, 0.11e-14, 0.11e-14]
+    loud = _result("loud", float(np.sqrt(np.mean(loud_ms))), loud_ms, occam=-1.0)
+    quiet = _result("quiet", float(np.sqrt(np.mean(quiet_ms))), quiet_ms, occam=-1.0)
+    assert loud.validation_rms_m < quiet.validation_rms_m
+    pooled = DiagnosisSettings(ranking="pooled")
+    relative = DiagnosisSettings(ranking="relative")
+    assert sorted([quiet, loud], key=rank_key("pooled"))[0] is loud
+    assert pick_winner(sorted([quiet, loud], key=rank_key("pooled")), pooled) is loud
+    ranked = sorted([loud, quiet], key=rank_key("relative"))
+    assert ranked[0] is quiet and pick_winner(ranked, relative) is quiet
+    # By hand: mean log ratio (quiet − loud) = (log(0.9/0.8) + 3·log 0.11) / 4 < 0.
+    by_hand = (np.log(0.90 / 0.80) + 3.0 * np.log(0.11)) / 4.0
+    assert quiet.mean_log_ms - loud.mean_log_ms == pytest.approx(by_hand, rel=1e-12)
+    assert quiet.geometric_rms_m == pytest.approx(
+        float(np.prod(np.sqrt(quiet_ms)) ** 0.25), rel=1e-12
+    )
+    # Told apart relatively (a consistent factor of 9 on three of four), and "pooled" ties
+    # them (within 25 % of each other; the step's difference swamps the others').
+    assert not indistinguishable(loud, quiet, "relative")
+    assert indistinguishable(loud, quiet, "pooled")
+    with pytest.raises(ValueError, match=r"ranking = 'geometric'.*relative, pooled"):
+        rank_key("geometric")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st_h.lists(
+        st_h.tuples(st_h.floats(1e-16, 1e-10), st_h.floats(1e-16, 1e-10), st_h.floats(1e-3, 1e3)),
+        min_size=2,
+        max_size=8,
+    )
+)
+def test_the_relative_ranking_does_not_depend_on_each_experiments_scale(
+    rows: list[tuple[float, float, float]],
+) -> None:
+    # Scaling one experiment's mean square by any factor, the same for every candidate
+    # (a louder experiment kind, another floor weight), changes neither the order of two
+    # candidates nor whether they are told apart.
+    a_ms = [a for a, _, _ in rows]
+    b_ms = [b for _, b, _ in rows]
+    a2_ms = [a * c for a, _, c in rows]
+    b2_ms = [b * c for _, b, c in rows]
+    a, b = _result("a", 1.0, a_ms, 0.0), _result("b", 1.0, b_ms, 0.0)
+    a2, b2 = _result("a", 1.0, a2_ms, 0.0), _result("b", 1.0, b2_ms, 0.0)
+    key = rank_key("relative")
+    d1, d2 = key(a) - key(b), key(a2) - key(b2)
+    assert d1 == pytest.approx(d2, abs=1e-9)
+    if abs(d1) > 1e-6:
+        assert (d1 < 0) == (d2 < 0)
+    # Away from the edges of the tie test, the verdict is the same.
+    la, lb = np.log(a_ms), np.log(b_ms)
+    dl = la - lb
+    se = float(np.std(dl, ddof=1) / np.sqrt(len(dl)))
+    m = abs(float(np.mean(dl)))
+    if abs(m - 2.0 * se) > 1e-6 and abs(m - 2.0 * np.log(1.25)) > 1e-6:
+        assert indistinguishable(a, b, "relative") == indistinguishable(a2, b2, "relative")

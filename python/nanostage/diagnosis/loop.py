@@ -30,7 +30,7 @@ from .objective import (
     rms_of,
 )
 from .scatter import LevelScatter, level_floors, level_scatter_directions, level_sensitivities
-from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner
+from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner, rank_key
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
 from .signatures import SignatureJudge
 
@@ -305,6 +305,7 @@ def diagnose_experiments(
             f"DiagnosisSettings.simulation_cache_mb = {st.simulation_cache_mb!r}: must be ≥ 0 "
             "(MB of simulations kept for reuse; 0 turns the reuse off)"
         )
+    ranked = rank_key(st.ranking)  # checks the setting before any work
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
     every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
@@ -445,7 +446,7 @@ def diagnose_experiments(
                 f"  ({seconds:.1f} s)",
                 progress,
             )
-        results.sort(key=lambda r: r.validation_rms_m)
+        results.sort(key=ranked)
         # Refine the best few with all starts (warm, the manifest's prior, Latin
         # hypercube), then rank again.
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
@@ -455,7 +456,7 @@ def diagnose_experiments(
         # model before's free values (:attr:`DiagnosisSettings.screen_holds_nominal`).
         held = {r.effect for r in results} if st.screen_holds_nominal else set()
         _refine(top, now, ctx, results, held, skipped, rnd, progress, executor)
-        results.sort(key=lambda r: r.validation_rms_m)
+        results.sort(key=ranked)
         # Refitting alone: a candidate's fit moves the free nominal parameters too, and
         # may have found a better optimum of the model *without* the effect. Refit the
         # model before from each significant candidate's free values; a better
@@ -498,7 +499,7 @@ def diagnose_experiments(
                 )
                 for r in results
             ]
-            results.sort(key=lambda r: r.validation_rms_m)
+            results.sort(key=ranked)
         rounds.append(results)
         if rnd == 0:
             pool_names = [r.effect for r in results]
@@ -513,7 +514,7 @@ def diagnose_experiments(
                 [by_name[best.effect]], now, ctx, results, held, skipped, rnd, progress, executor
             )
             held.discard(best.effect)
-            results.sort(key=lambda r: r.validation_rms_m)
+            results.sort(key=ranked)
             best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         if best is None:
             break

@@ -6,8 +6,10 @@ The report (``report.json``; schema in docs/diagnosis.md) has at least
     the validation gap of the calibrated nominal model: ``total_rms_m``, ``by_segment``
     (phase → RMS and share of the total sum of squares) and the full gap analysis;
 ``candidates``
-    every candidate of the first round, best first: ``effect``, ``validation_rms_m``,
-    ``shrink`` (fraction of the validation RMS gap removed), ``significant``,
+    every candidate of the first round, best first (by ``ranking``: ``"relative"``, the
+    geometric mean of the per-experiment gaps, or ``"pooled"``, the pooled RMS gap):
+    ``effect``, ``validation_rms_m``, ``validation_geometric_rms_m``, ``shrink``
+    (fraction of the validation RMS gap removed), ``significant``,
     ``parameters`` (value, standard error, unit), ``p_value`` and ``why``;
 ``selected``
     the effects kept by forward selection (possibly empty);
@@ -155,7 +157,7 @@ def _moves(e: Experiment) -> list[tuple[int, float, float]]:
 
 
 def ties_of_selected(
-    rounds: Sequence[Sequence[CandidateResult]], selected: Sequence[str]
+    rounds: Sequence[Sequence[CandidateResult]], selected: Sequence[str], ranking: str
 ) -> dict[str, list[str]]:
     """For each selected effect, the significant candidates of its round that the
     validation data cannot tell from it (:func:`indistinguishable`): the selection between
@@ -166,7 +168,7 @@ def ties_of_selected(
         out[name] = [
             r.effect
             for r in rnd
-            if r.effect != name and r.significant and indistinguishable(win, r)
+            if r.effect != name and r.significant and indistinguishable(win, r, ranking)
         ]
     return out
 
@@ -176,8 +178,8 @@ def best_single(
 ) -> CandidateResult | None:
     """The report's best single effect: the round-1 fit of the effect selected first (in a
     tie decided by the Occam factor, not always the smallest validation gap); with nothing
-    selected, the round-1 candidate with the smallest validation gap (``first_round`` is
-    sorted best first); None without candidates."""
+    selected, the first round-1 candidate (``first_round`` is sorted best first by the
+    ranking); None without candidates."""
     if selected:
         hit = next((r for r in first_round if r.effect == selected[0]), None)
         if hit is not None:
@@ -226,6 +228,7 @@ def experiment_advice(
     *,
     level_floors: Mapping[str, float] | None = None,
     validation_gap_m2: Mapping[str, float] | None = None,
+    ranking: str = "relative",
 ) -> list[dict[str, Any]]:
     """What the experiments cannot reveal, and which experiment would. With ``folds``, also
     whether the validation experiments revisit positions their training experiments
@@ -389,7 +392,7 @@ def experiment_advice(
     good = [r for r in results if r.shrink > penalty]
     for i, a in enumerate(good):
         for b in good[i + 1 :]:
-            if indistinguishable(a, b):
+            if indistinguishable(a, b, ranking):
                 pair = frozenset({a.effect, b.effect})
                 advice.append(
                     {
@@ -849,7 +852,8 @@ def assemble_report(
         "gap_before": before,
         "candidates": candidates,
         "selected": list(out["selected"]),
-        "indistinguishable": ties_of_selected(rounds, out["selected"]),
+        "indistinguishable": ties_of_selected(rounds, out["selected"], st.ranking),
+        "ranking": st.ranking,
         "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",
         # Per round with a tie: the signature χ² of each tied candidate (the judge's).
         "tie_signatures": [
@@ -892,6 +896,7 @@ def assemble_report(
             validation_gap_m2={
                 n: float(v["sum_sq_m2"]) for n, v in before["per_experiment"].items()
             },
+            ranking=st.ranking,
         ),
         "level_scatter": out.get("level_scatter"),
         "level_floors": dict(out.get("level_floors") or {}),
@@ -906,7 +911,7 @@ def assemble_report(
         ],
         "timing_s": out["timing_s"],
         "simulations": dict(out["simulations"]),
-        "signatures": signature_comparison(out, first),
+        "signatures": signature_comparison(out, first, st.ranking),
     }
 
 
@@ -917,6 +922,7 @@ def _features(sig: Mapping[str, Feature]) -> dict[str, dict[str, Any]]:
 def signature_comparison(
     out: Mapping[str, Any],
     first_round: Sequence[CandidateResult],
+    ranking: str,
     top: int = 3,
 ) -> dict[str, Any] | None:
     """The report's ``signatures``: the measured signature of all experiments
@@ -938,7 +944,7 @@ def signature_comparison(
     ]
     if selected:
         models.append(("selected model", None, out["final_fits"][0].system))
-        ties = set(ties_of_selected([first_round], selected[:1]).get(selected[0], []))
+        ties = set(ties_of_selected([first_round], selected[:1], ranking).get(selected[0], []))
         picked = [r for r in first_round if r.effect == selected[0] or r.effect in ties]
     else:
         picked = [r for r in first_round if r.shrink > 0.0][:top]

@@ -8,6 +8,14 @@ Significance (documented in docs/diagnosis.md)
     ``0.03 + 0.02·(number of parameters)``; (3) the reduction of the mean square exceeds
     ``1.5 ×`` the floor's mean square divided by the number of validation experiments (what
     refitting to noise can buy).
+
+Ranking (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.ranking`)
+    ``"relative"`` (the default) orders the candidates by the mean over the validation
+    experiments of log(mean-square gap): each experiment counts by the factor a candidate
+    cuts *its* gap, whatever its size, so a long step whose gap is a hundred times a
+    micro-step's does not alone decide between candidates that differ by factors of 3–6 on
+    the dwells, micro-steps and ramps. ``"pooled"`` orders them by the pooled RMS gap (the
+    earlier rule). The significance rules above do not depend on it.
 """
 
 from __future__ import annotations
@@ -21,9 +29,13 @@ import numpy as np
 
 from ..fitting import simplest_of_ties
 from .fit import Fit
-from .settings import DiagnosisSettings, FloatArray
+from .settings import RANKINGS, DiagnosisSettings, FloatArray
+
+#: A mean square below this (m²) counts as this in the relative ranking (log of zero).
+_TINY_MS_M2 = 1e-40
 
 __all__ = [
+    "RANKINGS",
     "CandidateResult",
     "bootstrap_p",
     "indistinguishable",
@@ -66,11 +78,26 @@ class CandidateResult:
     #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
     units: Mapping[str, str] = field(default_factory=dict)
 
+    @property
+    def mean_log_ms(self) -> float:
+        """Mean over the validation experiments of log(mean-square gap / m²): the relative
+        ranking's key (``inf`` without validation experiments)."""
+        if len(self.validation_ms) == 0:
+            return math.inf
+        return float(np.mean(np.log(np.maximum(self.validation_ms, _TINY_MS_M2))))
+
+    @property
+    def geometric_rms_m(self) -> float:
+        """The geometric mean over the validation experiments of their RMS gaps, m (the
+        relative ranking's key in metres)."""
+        return math.exp(0.5 * self.mean_log_ms)
+
     def to_dict(self) -> dict[str, Any]:
         units = self.units
         return {
             "effect": self.effect,
             "validation_rms_m": self.validation_rms_m,
+            "validation_geometric_rms_m": self.geometric_rms_m,
             "shrink": self.shrink,
             "weighted_shrink": self.weighted_shrink,
             "significant": self.significant,
@@ -104,18 +131,41 @@ def bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:
     return float(np.mean(means <= 0.0))
 
 
-def indistinguishable(a: CandidateResult, b: CandidateResult) -> bool:
-    """Whether the validation data cannot tell candidates ``a`` and ``b`` apart: their RMS
-    gaps lie within 25 % of each other and the mean difference of their per-experiment mean
-    squares is within two standard errors (over the validation experiments). With fewer
-    than two validation experiments nothing can be told apart."""
-    d = a.validation_ms - b.validation_ms
+def rank_key(ranking: str) -> Callable[[CandidateResult], float]:
+    """The sort key of a round's candidates (smallest first) under ``ranking`` (one of
+    :data:`RANKINGS`)."""
+    if ranking not in RANKINGS:
+        raise ValueError(
+            f"DiagnosisSettings.ranking = {ranking!r}: expected one of {', '.join(RANKINGS)}"
+        )
+    if ranking == "pooled":
+        return lambda r: r.validation_rms_m
+    return lambda r: r.mean_log_ms
+
+
+def indistinguishable(a: CandidateResult, b: CandidateResult, ranking: str = "relative") -> bool:
+    """Whether the validation data cannot tell candidates ``a`` and ``b`` apart under
+    ``ranking``. ``"pooled"``: their RMS gaps lie within 25 % of each other and the mean
+    difference of their per-experiment mean squares is within two standard errors (over
+    the validation experiments). ``"relative"``: the same in relative terms, on the
+    per-experiment differences of log(mean square): their geometric-mean RMS gaps lie
+    within 25 % of each other and the mean log ratio is within two standard errors. With
+    fewer than two validation experiments nothing can be told apart."""
+    rank_key(ranking)  # checks the name
+    if ranking == "relative":
+        la = np.log(np.maximum(a.validation_ms, _TINY_MS_M2))
+        lb = np.log(np.maximum(b.validation_ms, _TINY_MS_M2))
+        d = la - lb
+        # Geometric-mean RMS within 25 %: half the mean log ratio within log 1.25.
+        close = abs(float(np.mean(la)) - float(np.mean(lb))) <= 2.0 * math.log(1.25)
+    else:
+        d = a.validation_ms - b.validation_ms
+        close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
+            a.validation_rms_m, b.validation_rms_m
+        )
     if len(d) < 2:
         return True
     se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
-    close = abs(a.validation_rms_m - b.validation_rms_m) <= 0.25 * min(
-        a.validation_rms_m, b.validation_rms_m
-    )
     return close and abs(float(np.mean(d))) <= 2.0 * se
 
 
@@ -165,10 +215,11 @@ def pick_winner(
     ) = None,
     signature_margin: float = 0.0,
 ) -> CandidateResult | None:
-    """The candidate a round selects from its results (best validation gap first): the
-    first significant one; with :attr:`DiagnosisSettings.occam_tie_break`, among it and the
-    significant candidates the data cannot tell from it, the one with the largest Occam
-    factor (the first in gap order when equal). None when nothing is significant.
+    """The candidate a round selects from its results (best first by
+    :attr:`DiagnosisSettings.ranking`): the first significant one; with
+    :attr:`DiagnosisSettings.occam_tie_break`, among it and the significant candidates the
+    data cannot tell from it, the one with the largest Occam factor (the first in that
+    order when equal). None when nothing is significant.
 
     With ``signature_chi_squares`` (the tied candidates → the χ² of each fitted model's
     simulated signature against the measured one and the number of features in it,
@@ -181,7 +232,11 @@ def pick_winner(
     best = next((r for r in results if r.significant), None)
     if best is None:
         return None
-    tied = [r for r in results if r.significant and (r is best or indistinguishable(best, r))]
+    tied = [
+        r
+        for r in results
+        if r.significant and (r is best or indistinguishable(best, r, st.ranking))
+    ]
     if signature_chi_squares is not None and signature_margin > 0.0 and len(tied) > 1:
         d = [x for x, _ in signature_chi_squares(tied)]
         closest = min(d)
