@@ -897,6 +897,10 @@ def test_markdown_names_a_tie_and_how_it_was_decided() -> None:
     assert "smaller validation gap" in md and "Occam" not in md
     md = markdown_report(base | {"indistinguishable": {}, "tie_break": "occam_factor"})
     assert "- `asymmetric_friction`\n" in md and "Occam" not in md
+    md = markdown_report(
+        base | {"indistinguishable": ties, "tie_break": "validation_gap", "ranking": "relative"}
+    )
+    assert "smaller geometric validation gap" in md
 
 
 def test_markdown_reads_the_evidence_advice_and_selection() -> None:
@@ -907,6 +911,7 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
     cand = {
         "effect": "backlash",
         "validation_rms_m": 2.0e-7,
+        "validation_geometric_rms_m": 1.5e-7,
         "shrink": 0.9766,
         "significant": True,
         "p_value": 0.0,
@@ -995,8 +1000,11 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
         "- `dwell_static_friction`: all dwell times lie within a factor 2. **Experiment:** "
         "repeat one move after dwells of 0.05 s, 0.5 s and 5 s" in md
     )
+    assert "best pooled validation gap first" in md  # a report without a ranking: pooled
+    relative = markdown_report(report | {"ranking": "relative"})
+    assert "best geometric gap first" in relative and "best pooled" not in relative
     row = next(line for line in md.splitlines() if line.startswith("| 1 | `backlash`"))
-    assert "| 200.0 | 97.7 % | yes | 0.000 | 210.0 | -13.70 |" in row
+    assert "| 200.0 | 150.0 | 97.7 % | yes | 0.000 | 210.0 | -13.70 |" in row
     assert (
         "width_m = 1.442e-05 ± 2.2e-08 m<br>contact_stiffness_n_per_m = 3.5e+07 ± 2e+05 N/m" in row
     )

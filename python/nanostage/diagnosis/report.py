@@ -393,12 +393,14 @@ def _is_diagnosis_candidate(c: Any) -> bool:
 
 
 def _candidates_table(cands: Sequence[Mapping[str, Any]]) -> str:
-    """The diagnosis's candidates: gaps in nm, shrink in %, parameters with errors, the
-    reasons in words (the per-experiment gaps are in report.json)."""
+    """The diagnosis's candidates (in the report's ranking order): gaps in nm (pooled RMS
+    and the geometric mean over the validation experiments), shrink in %, parameters with
+    errors, the reasons in words (the per-experiment gaps are in report.json)."""
     head = [
         "#",
         "effect",
         "validation gap [nm]",
+        "geometric gap [nm]",
         "shrink",
         "significant",
         "p",
@@ -417,6 +419,7 @@ def _candidates_table(cands: Sequence[Mapping[str, Any]]) -> str:
                 str(i + 1),
                 f"`{_md_escape(str(c.get('effect')))}`",
                 _nm(c.get("validation_rms_m")),
+                _nm(c.get("validation_geometric_rms_m")),
                 _pct(c.get("shrink")),
                 _fmt("significant", bool(c.get("significant"))),
                 "—" if p is None else f"{p:.3f}",
@@ -705,7 +708,11 @@ def markdown_report(
                             "; selected by the larger Occam factor (its parameters "
                             "pinned down to a larger share of their bounds)"
                             if report.get("tie_break") == "occam_factor"
-                            else "; selected by the smaller validation gap"
+                            else (
+                                "; selected by the smaller validation gap"
+                                if report.get("ranking", "pooled") == "pooled"
+                                else "; selected by the smaller geometric validation gap"
+                            )
                         )
                         if isinstance(ties, Mapping) and ties.get(s)
                         else ""
@@ -795,12 +802,19 @@ def markdown_report(
         out.append("## Candidates (ranked)\n")
         cands = list(report["candidates"])
         if cands and all(_is_diagnosis_candidate(c) for c in cands):
+            order = (
+                "best pooled validation gap first (the RMS over the validation experiments, "
+                "each experiment's mean square counted equally)"
+                if report.get("ranking", "pooled") == "pooled"
+                else "best geometric gap first (the geometric mean over the validation "
+                "experiments of their RMS gaps: each experiment counts by the factor a "
+                "candidate cuts its own gap; validation gap: the pooled RMS)"
+            )
             out.append(
-                "Round 1: every candidate added to the calibrated nominal model alone, best "
-                "validation gap first (the RMS over the validation experiments, each "
-                "experiment's mean square counted equally; shrink: the fraction of it removed; "
-                "log Occam: the tie-break, larger is simpler; the gap per validation "
-                "experiment is in report.json).\n"
+                f"Round 1: every candidate added to the calibrated nominal model alone, "
+                f"{order}; shrink: the fraction of the pooled gap removed; log Occam: the "
+                "tie-break, larger is simpler; the gap per validation experiment is in "
+                "report.json.\n"
             )
             out.append(_candidates_table(cands))
         else:
