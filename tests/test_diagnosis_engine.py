@@ -64,7 +64,10 @@ from nanostage.diagnosis.objective import (
     simulate_readings_and_commands,
 )
 from nanostage.diagnosis.run import (
+    AT_BOUND,
+    at_bounds,
     best_single,
+    bound_warnings,
     diagnose,
     indistinguishable,
     model_gap,
@@ -964,6 +967,9 @@ def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None
     assert model_gap(m, doc.system)["total_rms_m"] == d.report["gap_after"]["total_rms_m"]
     assert d.report["gap_after"]["total_rms_m"] == d.report["gap_before"]["total_rms_m"]
     assert all(not c["significant"] for c in d.report["candidates"])
+    # The right model needs no parameter bent to its bound, and the report says none is.
+    assert d.report["calibration_at_bounds"] == {"nominal": [], "selected_model": []}
+    assert not any("bound" in w for w in d.report["warnings"])
     one = diagnose(m, None, settings=dc.replace(FAST, parallel_candidates=1), progress=False)
     # Bookkeeping aside (time, and how many simulations were looked up: two candidates
     # fitted at once may both simulate a pair neither has stored yet).
@@ -1389,3 +1395,28 @@ def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) ->
     md = (tmp_path / "benchmark.md").read_text(encoding="utf-8")
     assert "truth's shrink" in md
     assert "seed 3, diagnosed with a run-to-run friction level scatter of 0.01." in md
+
+
+def test_parameters_at_their_bounds_are_found_and_named() -> None:
+    free = [
+        ("plant.mass_kg", Param(name="m", unit="kg", lower=0.2, upper=0.6, initial=0.4)),
+        ("plant.k", Param(name="k", unit="N/m", lower=1e6, upper=1e9, initial=5e7, log=True)),
+        ("plant.c", Param(name="c", unit="N", lower=10.0, upper=50.0, initial=30.0)),
+    ]
+    # Normalised: m at 0.9999 (upper), k at log(1.05e6/1e6)/log(1000) = 0.007 (lower), c at
+    # 0.5; an effect's own parameter is not a free nominal one and is left out.
+    values = {"plant.mass_kg": 0.59996, "plant.k": 1.05e6, "plant.c": 30.0, "backlash.w": 1e-9}
+    fit = Fit(values=values, std_errors={}, train_rms_m=1e-7, n_evaluations=1, system=None)  # type: ignore[arg-type]
+    rows = at_bounds(fit, free)
+    assert rows == [
+        {"parameter": "plant.mass_kg", "value": 0.59996, "bound": "upper", "limit": 0.6},
+        {"parameter": "plant.k", "value": 1.05e6, "bound": "lower", "limit": 1e6},
+    ]
+    # Just inside the margin on the linear scale: not at the bound.
+    inside = dict(values, **{"plant.mass_kg": 0.6 - 0.4 * AT_BOUND * 1.5})
+    assert [r["parameter"] for r in at_bounds(dc.replace(fit, values=inside), free)] == ["plant.k"]
+    warns = bound_warnings(rows, [])
+    assert len(warns) == 1 and "plant.mass_kg = 0.6 at its upper bound 0.6" in warns[0]
+    assert "plant.k = 1.05e+06 at its lower bound 1e+06" in warns[0]
+    assert bound_warnings([], []) == []
+    assert "still at their bounds" in bound_warnings([], rows[:1])[0]

@@ -924,6 +924,7 @@ def markdown_report(
         "unexplained_rms_m",
         "unexplained",
         "warnings",
+        "calibration_at_bounds",
         "explained_fraction",
         "signatures",
         "timing_s",

@@ -26,7 +26,9 @@ and the selected model refitted on all the other experiments), ``gap_best_single
 ``noise_floor_rms_m``, ``forward_selection``, ``evidence``, ``advice``, ``skipped``,
 ``nominal_parameters``, ``selected_model_parameters``, ``unexplained_rms_m``,
 ``unexplained`` (with nothing selected above the floor: the gap and its best partial
-explanations), ``warnings`` (about the measured commands) and ``timing_s``.
+explanations), ``calibration_at_bounds`` (free parameters the nominal calibration and the
+selected model left at their bounds), ``warnings`` (about the measured commands, and the
+parameters at their bounds) and ``timing_s``.
 """
 
 from __future__ import annotations
@@ -68,6 +70,7 @@ __all__ = [
     "DISTINGUISHING_EXPERIMENT",
     "MODEL_FILE",
     "Diagnosis",
+    "at_bounds",
     "diagnose",
     "experiment_advice",
     "indistinguishable",
@@ -596,7 +599,14 @@ def diagnose(
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
     report["crossfit"] = _crossfit(setup, out, st, _lead(nominal), progress)
     report["manifest"] = str(m.path if manifest_path is None else manifest_path)
-    report["warnings"] = list(setup.warnings.values())
+    report["calibration_at_bounds"] = {
+        "nominal": at_bounds(out["nominal"], free),
+        "selected_model": at_bounds(out["final"], free) if out["selected"] else [],
+    }
+    report["warnings"] = list(setup.warnings.values()) + bound_warnings(
+        report["calibration_at_bounds"]["nominal"],
+        report["calibration_at_bounds"]["selected_model"],
+    )
     written = None
     if out_dir is not None:
         val = _validation_order(folds)
@@ -997,6 +1007,69 @@ def unexplained_gap(
         "floor_ratio": before_rms_m / floor_rms_m if floor_rms_m > 0 else math.inf,
         "partial_explanations": partial,
     }
+
+
+#: A free parameter within this share of its range from a bound (in the fit's normalised
+#: coordinates: log space for a log parameter) is reported as at that bound.
+AT_BOUND = 0.01
+
+
+def at_bounds(fit: Fit, free: Sequence[tuple[str, Param]]) -> list[dict[str, Any]]:
+    """The free parameters ``free`` that ``fit`` left at (within :data:`AT_BOUND` of) one of
+    their bounds: ``parameter``, ``value``, ``bound`` (``"lower"`` or ``"upper"``) and
+    ``limit`` (the bound's value). A calibration that drives a parameter of the nominal
+    model to its bound bends it to fit something the model does not have: the candidates
+    are judged from that calibration, so an effect it has absorbed can look like nothing
+    (an amplifier lag absorbed by the rotor inertia at its upper bound and the table
+    friction at its lower one)."""
+    out: list[dict[str, Any]] = []
+    for name, p in free:
+        if name not in fit.values:
+            continue
+        value = float(fit.values[name])
+        u = p.to_unit(value)
+        side = "lower" if u <= AT_BOUND else "upper" if u >= 1.0 - AT_BOUND else None
+        if side is not None:
+            out.append(
+                {
+                    "parameter": name,
+                    "value": value,
+                    "bound": side,
+                    "limit": p.lower if side == "lower" else p.upper,
+                }
+            )
+    return out
+
+
+def bound_warnings(
+    nominal: Sequence[Mapping[str, Any]], selected: Sequence[Mapping[str, Any]]
+) -> list[str]:
+    """The report's warnings about free parameters at their bounds (:func:`at_bounds`) in the
+    nominal calibration (``nominal``) and with the selected effects (``selected``)."""
+
+    def listed(rows: Sequence[Mapping[str, Any]]) -> str:
+        return ", ".join(
+            f"{r['parameter']} = {r['value']:.4g} at its {r['bound']} bound {r['limit']:.4g}"
+            for r in rows
+        )
+
+    out = []
+    if nominal:
+        out.append(
+            "the nominal calibration left free parameters at their bounds ("
+            + listed(nominal)
+            + "): the nominal model bends them to fit something it does not model, and the "
+            "candidates are judged from this calibration, so an effect it has absorbed can "
+            "be missed; widen the bounds in [model.bounds] where the datasheet allows, and "
+            "read 'none' or a small shrink with care"
+        )
+    if selected:
+        out.append(
+            "with the selected effects, free parameters are still at their bounds ("
+            + listed(selected)
+            + "): the selected model may be compensating for a further effect"
+        )
+    return out
 
 
 def _free_parameters(fit: Fit, nominal: Fit) -> dict[str, dict[str, float | None]]:
