@@ -30,8 +30,10 @@ from .scatter import discount_level
 from .settings import FAILED_GAP_M, Adapt, DiagnosisSettings, FloatArray
 
 __all__ = [
+    "AT_BOUND",
     "Fit",
     "FitProblem",
+    "at_bounds",
 ]
 
 
@@ -348,3 +350,35 @@ def _uncertainty(sol: Any, params: Sequence[tuple[str, Param]]) -> tuple[list[fl
         var = float(cov[i, i])
         out.append(abs(dv) * math.sqrt(var) if var > 0 and math.isfinite(var) else math.inf)
     return out, np.asarray(cov, dtype=np.float64)
+
+
+#: A free parameter within this share of its range from a bound (in the fit's normalised
+#: coordinates: log space for a log parameter) is reported as at that bound.
+AT_BOUND = 0.01
+
+
+def at_bounds(fit: Fit, free: Sequence[tuple[str, Param]]) -> list[dict[str, Any]]:
+    """The free parameters ``free`` that ``fit`` left at (within :data:`AT_BOUND` of) one of
+    their bounds: ``parameter``, ``value``, ``bound`` (``"lower"`` or ``"upper"``) and
+    ``limit`` (the bound's value). A calibration that drives a parameter of the nominal
+    model to its bound bends it to fit something the model does not have: the candidates
+    are judged from that calibration, so an effect it has absorbed can look like nothing
+    (an amplifier lag absorbed by the rotor inertia at its upper bound and the table
+    friction at its lower one)."""
+    out: list[dict[str, Any]] = []
+    for name, p in free:
+        if name not in fit.values:
+            continue
+        value = float(fit.values[name])
+        u = p.to_unit(value)
+        side = "lower" if u <= AT_BOUND else "upper" if u >= 1.0 - AT_BOUND else None
+        if side is not None:
+            out.append(
+                {
+                    "parameter": name,
+                    "value": value,
+                    "bound": side,
+                    "limit": p.lower if side == "lower" else p.upper,
+                }
+            )
+    return out

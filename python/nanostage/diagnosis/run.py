@@ -47,7 +47,7 @@ from ..experiment import Experiment
 from ..model_file import IdentifiedParameter, save_model
 from ..output import check_output_dir, staged_output
 from .candidates import CANDIDATES, Candidate, Param, applicable_candidates
-from .fit import Fit
+from .fit import AT_BOUND, Fit, at_bounds
 from .gap import analyse_gap
 from .loop import crossfit_models, diagnose_experiments
 from .manifest import Manifest, load_manifest
@@ -67,6 +67,7 @@ from .signatures import distance as signature_distance
 from .signatures import misses as signature_misses
 
 __all__ = [
+    "AT_BOUND",
     "DISTINGUISHING_EXPERIMENT",
     "MODEL_FILE",
     "Diagnosis",
@@ -1007,38 +1008,6 @@ def unexplained_gap(
         "floor_ratio": before_rms_m / floor_rms_m if floor_rms_m > 0 else math.inf,
         "partial_explanations": partial,
     }
-
-
-#: A free parameter within this share of its range from a bound (in the fit's normalised
-#: coordinates: log space for a log parameter) is reported as at that bound.
-AT_BOUND = 0.01
-
-
-def at_bounds(fit: Fit, free: Sequence[tuple[str, Param]]) -> list[dict[str, Any]]:
-    """The free parameters ``free`` that ``fit`` left at (within :data:`AT_BOUND` of) one of
-    their bounds: ``parameter``, ``value``, ``bound`` (``"lower"`` or ``"upper"``) and
-    ``limit`` (the bound's value). A calibration that drives a parameter of the nominal
-    model to its bound bends it to fit something the model does not have: the candidates
-    are judged from that calibration, so an effect it has absorbed can look like nothing
-    (an amplifier lag absorbed by the rotor inertia at its upper bound and the table
-    friction at its lower one)."""
-    out: list[dict[str, Any]] = []
-    for name, p in free:
-        if name not in fit.values:
-            continue
-        value = float(fit.values[name])
-        u = p.to_unit(value)
-        side = "lower" if u <= AT_BOUND else "upper" if u >= 1.0 - AT_BOUND else None
-        if side is not None:
-            out.append(
-                {
-                    "parameter": name,
-                    "value": value,
-                    "bound": side,
-                    "limit": p.lower if side == "lower" else p.upper,
-                }
-            )
-    return out
 
 
 def bound_warnings(
