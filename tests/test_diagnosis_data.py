@@ -897,10 +897,26 @@ def test_markdown_names_a_tie_and_how_it_was_decided() -> None:
     assert "smaller validation gap" in md and "Occam" not in md
     md = markdown_report(base | {"indistinguishable": {}, "tie_break": "occam_factor"})
     assert "- `asymmetric_friction`\n" in md and "Occam" not in md
+
     md = markdown_report(
         base | {"indistinguishable": ties, "tie_break": "validation_gap", "ranking": "relative"}
     )
     assert "smaller geometric validation gap" in md
+
+
+def test_markdown_summary_names_parameters_at_their_bounds() -> None:
+    at = [{"parameter": "plant.motor.rotor_inertia_kg_m2", "value": 1.5e-7, "bound": "upper"}]
+    bounds = {"nominal": at, "selected_model": []}
+    md = markdown_report({"candidates": [], "selected": [], "calibration_at_bounds": bounds})
+    assert "**Calibration at its bounds:** `plant.motor.rotor_inertia_kg_m2` (upper)" in md
+    assert "an effect it has absorbed can be missed" in md
+    md = markdown_report(
+        {"candidates": [], "selected": ["backlash"], "calibration_at_bounds": bounds}
+    )
+    assert "Calibration at its bounds" in md and "can be missed" not in md
+    none = {"nominal": [], "selected_model": []}
+    md = markdown_report({"candidates": [], "selected": [], "calibration_at_bounds": none})
+    assert "Calibration at its bounds" not in md
 
 
 def test_markdown_reads_the_evidence_advice_and_selection() -> None:

@@ -495,6 +495,20 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
             "explains it by the selection rules; best partial explanations: "
             + (", ".join(parts) if parts else "none (no candidate shrinks it)")
         )
+    bounds = report.get("calibration_at_bounds")
+    at = bounds.get("nominal") if isinstance(bounds, Mapping) else None
+    if isinstance(at, list | tuple) and at and all(isinstance(r, Mapping) for r in at):
+        lines.append(
+            "- **Calibration at its bounds:** "
+            + ", ".join(f"`{_md_escape(str(r.get('parameter')))}` ({r.get('bound')})" for r in at)
+            + ": the nominal model bends these parameters to fit something it does not "
+            "model, and the candidates are judged from that calibration"
+            + (
+                ", so an effect it has absorbed can be missed (see *Warnings*)"
+                if not sel
+                else " (see *Warnings*)"
+            )
+        )
     missed = _nominal_misses(report.get("signatures"))
     if missed:
         lines.append(
