@@ -897,7 +897,6 @@ def test_markdown_names_a_tie_and_how_it_was_decided() -> None:
     assert "smaller validation gap" in md and "Occam" not in md
     md = markdown_report(base | {"indistinguishable": {}, "tie_break": "occam_factor"})
     assert "- `asymmetric_friction`\n" in md and "Occam" not in md
-
     md = markdown_report(
         base | {"indistinguishable": ties, "tie_break": "validation_gap", "ranking": "relative"}
     )
