@@ -82,9 +82,9 @@ class DiagnosisSettings:
     #: (:mod:`~nanostage.diagnosis.scatter`), so a long saturated step, whose position
     #: error a 1 % level change makes add up over the whole move, no longer outweighs the
     #: holds, ramps and micro-steps that carry the effects' marks. Measured once on fresh
-    #: seeds with 0.01 (docs/benchmarks.md): independent family 4/7 first picks against
-    #: 2/7 without it, own family 6/7 with and without; off by default until more seeds
-    #: and the EMPS data are checked.
+    #: seeds with 0.01 (docs/benchmarks.md): independent family 4/7 and 2/7 first picks
+    #: against 2/7 and 2/7 without it (seeds 92, 95), own family 6/7 with and without;
+    #: off by default (the EMPS data give the same selections with it).
     level_scatter: float = 0.0
     #: How a round orders its candidates, and so which significant one it selects and
     #: which it calls tied (:mod:`~nanostage.diagnosis.select`): ``"relative"``, by the
@@ -93,7 +93,8 @@ class DiagnosisSettings:
     #: RMS gap, where the loudest experiment (a long step) decides. Fixed before scoring
     #: from the misses of the consumed benchmark seeds, where the truth was often second
     #: by the pooled gap and first on the dwells, micro-steps and ramps; scored once on
-    #: fresh seeds in docs/benchmarks.md.
+    #: fresh seeds (docs/benchmarks.md: independent 4/14, own 11/14 first picks, within
+    #: the noise of the pooled ranking's 33 % and 76 %).
     ranking: str = "relative"
     forward_rounds: int = 3
     forward_top: int = 8
