@@ -47,7 +47,7 @@ from ..experiment import Experiment
 from ..model_file import IdentifiedParameter, save_model
 from ..output import check_output_dir, staged_output
 from .candidates import CANDIDATES, Candidate, Param, applicable_candidates
-from .fit import AT_BOUND, Fit, at_bounds
+from .fit import Fit, at_bounds
 from .gap import analyse_gap
 from .loop import crossfit_models, diagnose_experiments
 from .manifest import Manifest, load_manifest
@@ -67,11 +67,9 @@ from .signatures import distance as signature_distance
 from .signatures import misses as signature_misses
 
 __all__ = [
-    "AT_BOUND",
     "DISTINGUISHING_EXPERIMENT",
     "MODEL_FILE",
     "Diagnosis",
-    "at_bounds",
     "diagnose",
     "experiment_advice",
     "indistinguishable",

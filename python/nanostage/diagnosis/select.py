@@ -34,6 +34,13 @@ from .settings import RANKINGS, DiagnosisSettings, FloatArray
 #: A mean square below this (m²) counts as this in the relative ranking (log of zero).
 _TINY_MS_M2 = 1e-40
 
+
+def _log_ms(ms: FloatArray) -> FloatArray:
+    """log(mean square / m²) per validation experiment, a zero counted as :data:`_TINY_MS_M2`."""
+    out: FloatArray = np.log(np.maximum(ms, _TINY_MS_M2))
+    return out
+
+
 __all__ = [
     "RANKINGS",
     "CandidateResult",
@@ -84,7 +91,7 @@ class CandidateResult:
         ranking's key (``inf`` without validation experiments)."""
         if len(self.validation_ms) == 0:
             return math.inf
-        return float(np.mean(np.log(np.maximum(self.validation_ms, _TINY_MS_M2))))
+        return float(np.mean(_log_ms(self.validation_ms)))
 
     @property
     def geometric_rms_m(self) -> float:
@@ -153,8 +160,7 @@ def indistinguishable(a: CandidateResult, b: CandidateResult, ranking: str = "re
     fewer than two validation experiments nothing can be told apart."""
     rank_key(ranking)  # checks the name
     if ranking == "relative":
-        la = np.log(np.maximum(a.validation_ms, _TINY_MS_M2))
-        lb = np.log(np.maximum(b.validation_ms, _TINY_MS_M2))
+        la, lb = _log_ms(a.validation_ms), _log_ms(b.validation_ms)
         d = la - lb
         # Geometric-mean RMS within 25 %: half the mean log ratio within log 1.25.
         close = abs(float(np.mean(la)) - float(np.mean(lb))) <= 2.0 * math.log(1.25)
