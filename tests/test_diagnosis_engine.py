@@ -16,6 +16,8 @@ from typing import Any, cast
 import numpy as np
 import pytest
 from diagnosis_cases import step_case
+from hypothesis import given, settings
+from hypothesis import strategies as st_h
 
 import nanostage as ns
 from nanostage import presets
@@ -43,6 +45,7 @@ from nanostage.diagnosis.candidates import (
 from nanostage.diagnosis.fit import AT_BOUND, Fit, FitProblem, at_bounds
 from nanostage.diagnosis.loop import (
     FRICTION_MODELS,
+    LAG_FAMILY,
     _Ctx,
     _judge,
     _refit_control,
@@ -71,7 +74,13 @@ from nanostage.diagnosis.run import (
     model_gap,
     ties_of_selected,
 )
-from nanostage.diagnosis.select import CandidateResult, log_occam_factor, pick_winner
+from nanostage.diagnosis.select import (
+    CandidateResult,
+    log_occam_factor,
+    pick_winner,
+    relative_terms,
+    significance_mode,
+)
 from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
 from nanostage.effects import (
     EFFECT_NAMES,
@@ -320,6 +329,39 @@ def test_refine_the_best_friction_model_outside_the_best_four() -> None:
     assert refine_names(order, dc.replace(st, refine_best_friction_model=False)) == top4
     assert refine_names(order[:5], st) == top4
     assert refine_names(ranked("gms", "offset_force"), st) == ["gms", "offset_force"]
+
+
+def test_a_calibration_at_its_bounds_refines_the_whole_lag_family() -> None:
+    """With a free parameter of the model before at its bound, every lag-family candidate
+    is refined too (after the usual ones, in screening order, none twice); without, or
+    turned off, the refits are the usual ones."""
+
+    def ranked(*names: str) -> list[CandidateResult]:
+        return [cast(CandidateResult, SimpleNamespace(effect=n)) for n in names]
+
+    order = ranked(
+        "offset_force",
+        "lugre",
+        "drive_compliance",
+        "dwell_static_friction",
+        "stribeck",
+        "amplifier_dynamics",
+        "position_random_friction",
+        "backlash",
+        "computation_delay",
+    )
+    st = DiagnosisSettings()
+    usual = ["offset_force", "lugre", "drive_compliance", "dwell_static_friction", "stribeck"]
+    assert refine_names(order, st) == usual
+    assert refine_names(order, st, lag_family=True) == [
+        *usual,
+        "amplifier_dynamics",
+        "backlash",
+        "computation_delay",
+    ]
+    off = dc.replace(st, refine_lag_family_at_bounds=False)
+    assert refine_names(order, off, lag_family=True) == usual
+    assert set(LAG_FAMILY) <= set(CANDIDATES)
 
 
 def test_benchmark_design_reference() -> None:
@@ -1077,6 +1119,86 @@ def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:
     assert judge(20e-9, 1.5)
     assert not judge(45e-9, 1.5)  # 60 nm ≤ 1.5 × 45 nm
     assert judge(45e-9, 0.0)
+
+
+def test_relative_terms_by_hand() -> None:
+    """Log ratios of the mean squares before and after, each clamped at its floor: 4 → 1
+    floors² gives log 4; a cut below the floor counts to the floor only (100 → 0.01 floors²
+    as 100 → 1); a gap at its floor before and after gives 0. The geometric shrink is
+    1 − exp(−mean/2)."""
+    f2 = np.array([1.0, 4.0, 9.0]) * 1e-16
+    before = np.array([4.0, 100.0, 9.0]) * 1e-16 * np.array([1.0, 4.0, 1.0])
+    after = np.array([1.0, 0.01, 1.0]) * 1e-16 * np.array([1.0, 4.0, 1.0])
+    d, shrink = relative_terms(before, after, f2)
+    assert d == pytest.approx([np.log(4.0), np.log(100.0), 0.0], rel=1e-12)
+    assert shrink == pytest.approx(1.0 - np.exp(-0.5 * np.log(400.0) / 3.0), rel=1e-12)
+    assert relative_terms(np.zeros(0), np.zeros(0), np.zeros(0))[1] == 0.0
+    with pytest.raises(ValueError, match="expected the same"):
+        relative_terms(before, after[:2], f2)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st_h.lists(
+        st_h.tuples(
+            st_h.floats(0.1, 1e3), st_h.floats(0.1, 1e3), st_h.floats(0.5, 5.0), st_h.floats(-6, 6)
+        ),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_relative_terms_do_not_depend_on_any_experiments_scale(rows: list) -> None:
+    """Scaling one experiment's gaps before and after and its floor by the same factor (a
+    loud step against a micro-step) changes nothing; a worse gap gives a negative ratio."""
+    table = np.array(rows)
+    before, after, floor = (table[:, j] * 1e-16 for j in range(3))
+    scale = 10.0 ** table[:, 3]
+    d0, s0 = relative_terms(before, after, floor)
+    d1, s1 = relative_terms(before * scale, after * scale, floor * scale)
+    assert d1 == pytest.approx(d0, abs=1e-9)
+    assert s1 == pytest.approx(s0, abs=1e-9)
+    assert np.all((d0 < 0) <= (after > np.maximum(before, floor)))
+
+
+def test_relative_significance_counts_each_experiment_by_its_own_factor() -> None:
+    """Nine quiet validation experiments cut threefold and three loud ones 40 % worse (RMS),
+    all with the same floor (the sensor's): the pooled gap rises, so the pooled rules reject
+    the candidate, and the relative ones accept it (geometric shrink about 50 %). Each
+    experiment's gap counts against its own floor: a cut from 2 floors to 0.1 floor is a
+    cut to the floor. Every experiment a few per cent better is below the complexity
+    penalty either way."""
+    overall = 30e-9
+    w = np.ones(12)
+    base_ms = np.array([(1000e-9) ** 2] * 3 + [(300e-9) ** 2] * 9)
+    ms = base_ms * np.r_[[1.4**2] * 3, [1 / 9] * 9]
+
+    def judge(after: np.ndarray, mode: str) -> CandidateResult:
+        return _judge_one_parameter(
+            after, base_ms, overall, w, DiagnosisSettings(significance=mode)
+        )
+
+    pooled, relative = judge(ms, "pooled"), judge(ms, "relative")
+    assert pooled.shrink < 0 and not pooled.significant
+    assert relative.significant, relative.reasons
+    assert relative.geometric_shrink == pytest.approx(
+        1 - np.exp(-0.5 * np.mean(np.log(base_ms / ms))), rel=1e-12
+    )
+    assert "geometric shrink" in relative.reasons[-1]
+    # Below the floor counts as the floor.
+    quiet = np.r_[[0], [1] * 11].astype(bool)
+    b2 = np.where(quiet, (2 * overall) ** 2, base_ms)
+    a_floor = np.where(quiet, overall**2, base_ms)
+    a_below = np.where(quiet, (0.1 * overall) ** 2, base_ms)
+    g_floor = _judge_one_parameter(a_floor, b2, overall, w, DiagnosisSettings())
+    g_below = _judge_one_parameter(a_below, b2, overall, w, DiagnosisSettings())
+    assert g_below.geometric_shrink == g_floor.geometric_shrink > 0
+    small = base_ms * 0.97**2
+    for mode in ("pooled", "relative"):
+        r = judge(small, mode)
+        assert not r.significant
+        assert any("complexity penalty" in why for why in r.reasons)
+    with pytest.raises(ValueError, match=r"significance = 'geometric'.*relative, pooled"):
+        significance_mode("geometric")
 
 
 def test_each_experiment_kind_gets_the_floor_of_its_own_repeats() -> None:

@@ -134,6 +134,7 @@ def _result(name: str, rms: float, ms: list[float], occam: float) -> object:
         validation_rms_m=rms,
         shrink=0.5,
         weighted_shrink=0.5,
+        geometric_shrink=0.5,
         p_value=0.0,
         significant=True,
         reasons=[],

@@ -18,7 +18,7 @@ from ..checks import executor_arg
 from ..config import System
 from ..experiment import Experiment
 from .candidates import Candidate, Param, applicable_candidates
-from .fit import Fit, FitProblem
+from .fit import Fit, FitProblem, at_bounds
 from .objective import (
     SimulationCache,
     channel_units,
@@ -30,11 +30,29 @@ from .objective import (
     rms_of,
 )
 from .scatter import LevelScatter, level_floors, level_scatter_directions, level_sensitivities
-from .select import CandidateResult, bootstrap_p, log_occam_factor, pick_winner, rank_key
+from .select import (
+    CandidateResult,
+    bootstrap_p,
+    log_occam_factor,
+    pick_winner,
+    rank_key,
+    relative_terms,
+    significance_mode,
+)
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
 from .signatures import SignatureJudge
 
 FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
+#: The effects that add lag or play to the loop (limit cycles, phase lag): refined as a
+#: family when the model before has a free parameter at its bound
+#: (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`).
+LAG_FAMILY = (
+    "backlash",
+    "computation_delay",
+    "sensor_delay",
+    "drive_compliance",
+    "amplifier_dynamics",
+)
 
 #: A train/validate split of experiments.
 Split = tuple[Sequence[Experiment], Sequence[Experiment]]
@@ -306,6 +324,7 @@ def diagnose_experiments(
             "(MB of simulations kept for reuse; 0 turns the reuse off)"
         )
     ranked = rank_key(st.ranking)  # checks the setting before any work
+    significance_mode(st.significance)
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
     every = {e.name: e for tr, va in folds for e in list(tr) + list(va)}
@@ -451,7 +470,16 @@ def diagnose_experiments(
         # hypercube), then rank again.
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
 
-        top = [by_name[name] for name in refine_names(results, st)]
+        bent = sorted({b["parameter"] for f in current_fits for b in at_bounds(f, free)})
+        names_top = refine_names(results, st, lag_family=bool(bent))
+        more = names_top[len(refine_names(results, st)) :]
+        if more:
+            print_progress(
+                f"  round {rnd + 1}: {', '.join(bent)} at a bound in the model before: "
+                f"refining the lag family too ({', '.join(more)})",
+                progress,
+            )
+        top = [by_name[name] for name in names_top]
         # With the nominal held in screening, the results not refitted here hold the
         # model before's free values (:attr:`DiagnosisSettings.screen_holds_nominal`).
         held = {r.effect for r in results} if st.screen_holds_nominal else set()
@@ -605,17 +633,23 @@ def command_weights(
     return {n: floors[n] / f for n, f in cmd.items() if f > 0.0 and n not in unusable}
 
 
-def refine_names(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
+def refine_names(
+    results: Sequence[CandidateResult], st: DiagnosisSettings, lag_family: bool = False
+) -> list[str]:
     """The candidates of a round refitted from all starts, from its screened results (best
     first): the best :attr:`DiagnosisSettings.refine_top`, and with
     :attr:`DiagnosisSettings.refine_best_friction_model` the best-screened friction-model
-    candidate outside them (one at most)."""
+    candidate outside them (one at most); with ``lag_family`` (the model before has a free
+    parameter at its bound) and :attr:`DiagnosisSettings.refine_lag_family_at_bounds`,
+    then every other member of :data:`LAG_FAMILY` among them, in screening order."""
     names = [r.effect for r in results[: st.refine_top]]
     if st.refine_best_friction_model:
         rest = (r.effect for r in results[st.refine_top :] if r.effect in FRICTION_MODELS)
         best = next(rest, None)
         if best is not None:
             names.append(best)
+    if lag_family and st.refine_lag_family_at_bounds:
+        names += [r.effect for r in results if r.effect in LAG_FAMILY and r.effect not in names]
     return names
 
 
@@ -1019,48 +1053,78 @@ def _verdict(
     # as a loud one's relative to what noise alone gives there. The move units come
     # weighted from :meth:`_Ctx.fit_and_validate`.
     w = ctx.validation_weights if len(base_ms) == ctx.n_validation else np.ones(len(base_ms))
-    du = (
-        base_units - units
-        if units is not None and base_units is not None and len(units) == len(base_units)
-        else w * d
-    )
-    p = bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
     rms0 = math.sqrt(float(np.mean(base_ms)))
     rms1 = math.sqrt(float(np.mean(ms)))
     shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
     wrms0 = math.sqrt(float(np.mean(w * base_ms)))
     wrms1 = math.sqrt(float(np.mean(w * ms)))
     weighted_shrink = 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
+    log_ratios, geometric_shrink = relative_terms(base_ms, ms, ctx.floor**2 / w)
     penalty = st.penalty_base + st.penalty_per_param * k_params
-    floor_gain = st.floor_factor * ctx.floor**2 / ctx.n_validation
-    gain = float(np.mean(w * d))
     weighted = bool(np.any(w != 1.0))
     wtag = " (floor-weighted)" if weighted else ""
-    reasons = []
-    ok = True
+    relative = st.significance == "relative"
+    # The shrink the penalty and the large-gap rule judge.
+    judged = geometric_shrink if relative else weighted_shrink
     # A large explained gap: far above the floor, and most of it removed.
     large = (
         st.large_gap_factor > 0.0
         and wrms0 >= st.large_gap_factor * ctx.floor
-        and weighted_shrink >= st.large_shrink
+        and judged >= st.large_shrink
     )
-    if p >= st.p_value and not large:
-        ok = False
-        reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.2f} ≥ {st.p_value}")
-    if weighted_shrink <= penalty:
-        ok = False
-        reasons.append(f"shrink{wtag} {weighted_shrink:.1%} ≤ complexity penalty {penalty:.0%}")
+    reasons = []
+    ok = True
+    if relative:
+        p = bootstrap_p(log_ratios, st.bootstrap, st.seed + 1000 + index)
+        if p >= st.p_value and not large:
+            ok = False
+            reasons.append(
+                f"bootstrap over validation experiments (log ratios): p = {p:.2f} ≥ {st.p_value}"
+            )
+        if geometric_shrink <= penalty:
+            ok = False
+            reasons.append(
+                f"geometric shrink {geometric_shrink:.1%} ≤ complexity penalty {penalty:.0%}"
+            )
+        gap_text = (
+            f"validation gaps: geometric shrink {geometric_shrink:.0%} (pooled "
+            f"{rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink {shrink:.0%})"
+        )
+    else:
+        du = (
+            base_units - units
+            if units is not None and base_units is not None and len(units) == len(base_units)
+            else w * d
+        )
+        p = bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
+        if p >= st.p_value and not large:
+            ok = False
+            reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.2f} ≥ {st.p_value}")
+        if weighted_shrink <= penalty:
+            ok = False
+            reasons.append(f"shrink{wtag} {weighted_shrink:.1%} ≤ complexity penalty {penalty:.0%}")
+        floor_gain = st.floor_factor * ctx.floor**2 / ctx.n_validation
+        gain = float(np.mean(w * d))
+        if gain <= floor_gain:
+            ok = False
+            reasons.append(
+                f"mean-square gain {gain:.3g} m² ≤ noise-and-refit floor {floor_gain:.3g} m²"
+            )
+        gap_text = (
+            f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}"
+            + (f"; floor-weighted {wrms0 * 1e9:.0f} → {wrms1 * 1e9:.0f} nm" if weighted else "")
+            + ")"
+        )
     if wrms0 <= st.explainable_factor * ctx.floor:
         ok = False
         reasons.append(
             f"the gap before{wtag} ({wrms0 * 1e9:.0f} nm) is within {st.explainable_factor}× "
             f"the noise floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
         )
-    if gain <= floor_gain:
-        ok = False
-        reasons.append(
-            f"mean-square gain {gain:.3g} m² ≤ noise-and-refit floor {floor_gain:.3g} m²"
-        )
+    large_text = (
+        f" (≥ {st.p_value}, but the gap before is {wrms0 / ctx.floor:.0f}× the noise "
+        f"floor and {judged:.0%} of it is removed: a large explained gap)"
+    )
     pairs = [(a, b) for a, b in zip(base_cmd, cmd, strict=True) if a is not None and b is not None]
     command_ratio = (
         math.sqrt(sum(b for _, b in pairs) / sum(a for a, _ in pairs))
@@ -1075,15 +1139,9 @@ def _verdict(
         )
     if ok:
         reasons.append(
-            f"validation gap {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm (shrink {shrink:.0%}"
-            + (f"; floor-weighted {wrms0 * 1e9:.0f} → {wrms1 * 1e9:.0f} nm" if weighted else "")
-            + f"), bootstrap p = {p:.3f}"
-            + (
-                f" (≥ {st.p_value}, but the gap before is {wrms0 / ctx.floor:.0f}× the noise "
-                f"floor and {weighted_shrink:.0%} of it is removed: a large explained gap)"
-                if p >= st.p_value
-                else ""
-            )
+            gap_text
+            + f", bootstrap p = {p:.3f}"
+            + (large_text if p >= st.p_value else "")
             + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
         )
     return CandidateResult(
@@ -1096,6 +1154,7 @@ def _verdict(
         validation_rms_m=rms1,
         shrink=shrink,
         weighted_shrink=weighted_shrink,
+        geometric_shrink=geometric_shrink,
         p_value=p,
         significant=ok,
         reasons=reasons,

@@ -16,6 +16,19 @@ Ranking (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.ranking`)
     micro-step's does not alone decide between candidates that differ by factors of 3–6 on
     the dwells, micro-steps and ramps. ``"pooled"`` orders them by the pooled RMS gap (the
     earlier rule). The significance rules above do not depend on it.
+
+Relative significance (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.significance`)
+    ``"relative"`` (the default) judges in the relative ranking's terms. Per validation
+    experiment, the log ratio of the mean-square gap before to the candidate's, each
+    clamped at that experiment's noise floor squared (a gap cut below the floor is cut to
+    noise, and counts no further; :func:`relative_terms`). A candidate is significant when
+    all hold: (1) the bootstrap over the validation experiments gives a mean log ratio
+    ≤ 0 in fewer than 5 % of resamples; (2) the geometric shrink,
+    ``1 − exp(−mean log ratio / 2)``, exceeds the complexity penalty. What does not depend
+    on the candidate holds in both modes: the gap before must exceed ``1.5 ×`` the noise
+    floor (each experiment weighted by its own floor: there is something to explain), the
+    large-explained-gap rule (with the geometric shrink here), and the command check.
+    ``"pooled"`` applies the rules above.
 """
 
 from __future__ import annotations
@@ -29,7 +42,7 @@ import numpy as np
 
 from ..fitting import simplest_of_ties
 from .fit import Fit
-from .settings import RANKINGS, DiagnosisSettings, FloatArray
+from .settings import RANKINGS, SIGNIFICANCES, DiagnosisSettings, FloatArray
 
 #: A mean square below this (m²) counts as this in the relative ranking (log of zero).
 _TINY_MS_M2 = 1e-40
@@ -43,11 +56,14 @@ def _log_ms(ms: FloatArray) -> FloatArray:
 
 __all__ = [
     "RANKINGS",
+    "SIGNIFICANCES",
     "CandidateResult",
     "bootstrap_p",
     "indistinguishable",
     "log_occam_factor",
     "pick_winner",
+    "relative_terms",
+    "significance_mode",
 ]
 
 
@@ -70,6 +86,9 @@ class CandidateResult:
     #: The shrink with each validation experiment weighted by its own noise floor (equal
     #: to ``shrink`` without kind floors): what the complexity penalty is applied to.
     weighted_shrink: float
+    #: The geometric shrink over the validation experiments (:func:`relative_terms`): what
+    #: the relative significance applies the complexity penalty to.
+    geometric_shrink: float
     p_value: float
     significant: bool
     reasons: list[str]
@@ -107,6 +126,7 @@ class CandidateResult:
             "validation_geometric_rms_m": self.geometric_rms_m,
             "shrink": self.shrink,
             "weighted_shrink": self.weighted_shrink,
+            "geometric_shrink": self.geometric_shrink,
             "significant": self.significant,
             "p_value": self.p_value,
             "command_ratio": self.command_ratio,
@@ -136,6 +156,37 @@ def bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:
     idx = rng.integers(0, len(d), size=(n_boot, len(d)))
     means = d[idx].mean(axis=1)
     return float(np.mean(means <= 0.0))
+
+
+def relative_terms(
+    before_ms: FloatArray, after_ms: FloatArray, floor_ms: FloatArray
+) -> tuple[FloatArray, float]:
+    """The relative significance's terms (module docstring) from the mean-square gaps of
+    the validation experiments before and after, m², and each one's noise floor squared:
+    the log ratios (each mean square clamped at its floor; positive: the gap shrank) and
+    the geometric shrink ``1 − exp(−mean/2)`` (0 without experiments)."""
+    before = np.asarray(before_ms, dtype=np.float64)
+    after = np.asarray(after_ms, dtype=np.float64)
+    floor = np.maximum(np.asarray(floor_ms, dtype=np.float64), _TINY_MS_M2)
+    if not before.shape == after.shape == floor.shape:
+        raise ValueError(
+            f"relative_terms: {before.shape}, {after.shape} and {floor.shape} experiments "
+            "before, after and floors: expected the same"
+        )
+    if before.size == 0:
+        return np.zeros(0), 0.0
+    d: FloatArray = np.log(np.maximum(before, floor)) - np.log(np.maximum(after, floor))
+    return d, 1.0 - math.exp(-0.5 * float(np.mean(d)))
+
+
+def significance_mode(significance: str) -> str:
+    """``significance`` checked against :data:`SIGNIFICANCES` (a clear error otherwise)."""
+    if significance not in SIGNIFICANCES:
+        raise ValueError(
+            f"DiagnosisSettings.significance = {significance!r}: expected one of "
+            f"{', '.join(SIGNIFICANCES)}"
+        )
+    return significance
 
 
 def rank_key(ranking: str) -> Callable[[CandidateResult], float]:
