@@ -928,6 +928,7 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
         "validation_rms_m": 2.0e-7,
         "validation_geometric_rms_m": 1.5e-7,
         "shrink": 0.9766,
+        "geometric_shrink": 0.9412,
         "significant": True,
         "p_value": 0.0,
         "train_rms_m": 2.1e-7,
@@ -1019,7 +1020,7 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
     relative = markdown_report(report | {"ranking": "relative"})
     assert "best geometric gap first" in relative and "best pooled" not in relative
     row = next(line for line in md.splitlines() if line.startswith("| 1 | `backlash`"))
-    assert "| 200.0 | 150.0 | 97.7 % | yes | 0.000 | 210.0 | -13.70 |" in row
+    assert "| 200.0 | 150.0 | 97.7 % | 94.1 % | yes | 0.000 | 210.0 | -13.70 |" in row
     assert (
         "width_m = 1.442e-05 ± 2.2e-08 m<br>contact_stiffness_n_per_m = 3.5e+07 ± 2e+05 N/m" in row
     )

@@ -1005,6 +1005,10 @@ def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None
     assert model_gap(m, doc.system)["total_rms_m"] == d.report["gap_after"]["total_rms_m"]
     assert d.report["gap_after"]["total_rms_m"] == d.report["gap_before"]["total_rms_m"]
     assert all(not c["significant"] for c in d.report["candidates"])
+    assert d.report["ranking"] == d.report["significance"] == "relative"
+    # Each candidate names the relative rule it failed.
+    rules = ("geometric shrink", "(log ratios)", "nothing left to explain", "command")
+    assert all(any(r in w for r in rules for w in c["why"]) for c in d.report["candidates"])
     # The right model needs no parameter bent to its bound, and the report says none is.
     assert d.report["calibration_at_bounds"] == {"nominal": [], "selected_model": []}
     assert not any("bound" in w for w in d.report["warnings"])

@@ -394,7 +394,7 @@ def _is_diagnosis_candidate(c: Any) -> bool:
 
 def _candidates_table(cands: Sequence[Mapping[str, Any]]) -> str:
     """The diagnosis's candidates (in the report's ranking order): gaps in nm (pooled RMS
-    and the geometric mean over the validation experiments), shrink in %, parameters with
+    and the geometric mean over the validation experiments), shrinks in % (of both), parameters with
     errors, the reasons in words (the per-experiment gaps are in report.json)."""
     head = [
         "#",
@@ -402,6 +402,7 @@ def _candidates_table(cands: Sequence[Mapping[str, Any]]) -> str:
         "validation gap [nm]",
         "geometric gap [nm]",
         "shrink",
+        "geometric shrink",
         "significant",
         "p",
         "training gap [nm]",
@@ -421,6 +422,7 @@ def _candidates_table(cands: Sequence[Mapping[str, Any]]) -> str:
                 _nm(c.get("validation_rms_m")),
                 _nm(c.get("validation_geometric_rms_m")),
                 _pct(c.get("shrink")),
+                _pct(c.get("geometric_shrink")),
                 _fmt("significant", bool(c.get("significant"))),
                 "—" if p is None else f"{p:.3f}",
                 _nm(c.get("train_rms_m")),

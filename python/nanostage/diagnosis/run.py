@@ -863,6 +863,7 @@ def assemble_report(
         "selected": list(out["selected"]),
         "indistinguishable": ties_of_selected(rounds, out["selected"], st.ranking),
         "ranking": st.ranking,
+        "significance": st.significance,
         "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",
         # Per round with a tie: the signature χ² of each tied candidate (the judge's).
         "tie_signatures": [

@@ -1,6 +1,6 @@
 """Choosing between fitted candidates.
 
-Significance (documented in docs/diagnosis.md)
+Pooled significance (``significance = "pooled"``; documented in docs/diagnosis.md)
     A candidate is *significant* when all hold: (1) its validation mean-square gap is lower
     than the nominal model's by more than the noise floor allows: the bootstrap over
     validation experiments (resampled with replacement) gives a reduction ≤ 0 in fewer than
@@ -15,7 +15,7 @@ Ranking (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.ranking`)
     cuts *its* gap, whatever its size, so a long step whose gap is a hundred times a
     micro-step's does not alone decide between candidates that differ by factors of 3–6 on
     the dwells, micro-steps and ramps. ``"pooled"`` orders them by the pooled RMS gap (the
-    earlier rule). The significance rules above do not depend on it.
+    earlier rule).
 
 Relative significance (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.significance`)
     ``"relative"`` (the default) judges in the relative ranking's terms. Per validation
