@@ -1205,6 +1205,30 @@ def test_relative_significance_counts_each_experiment_by_its_own_factor() -> Non
         significance_mode("geometric")
 
 
+def test_experiments_at_their_floor_before_and_after_say_nothing() -> None:
+    """Four validation experiments: a step and a ramp whose gaps a candidate cuts two- and
+    threefold, and two micro-steps at their floor before and after. The micro-steps' log
+    ratios are 0 and are left out of the bootstrap (kept, p would be about 1/16 whatever
+    the step and the ramp show): significant, p = 0. A candidate that changes only
+    experiments at their floor has no evidence left: p = 1."""
+    floor = 30e-9
+    base_ms = np.array([1270e-9, 25e-9, 560e-9, 28e-9]) ** 2
+    ms = np.array([480e-9, 10e-9, 300e-9, 12e-9]) ** 2
+    r = _judge_one_parameter(ms, base_ms, floor, np.ones(4), DiagnosisSettings())
+    assert r.significant and r.p_value == 0.0, r.reasons
+    d, shrink = relative_terms(base_ms, ms, np.full(4, floor**2))
+    assert d[1] == d[3] == 0.0 and r.geometric_shrink == shrink
+    only_floor = np.array([1270e-9, 5e-9, 560e-9, 5e-9]) ** 2
+    quiet = _judge_one_parameter(
+        np.r_[base_ms[0], only_floor[1], base_ms[2], only_floor[3]],
+        base_ms,
+        floor,
+        np.ones(4),
+        DiagnosisSettings(),
+    )
+    assert quiet.p_value == 1.0 and not quiet.significant
+
+
 def test_each_experiment_kind_gets_the_floor_of_its_own_repeats() -> None:
     """Floors per kind (the step sizes, whatever the direction and the start): a quiet kind
     (three-count steps scattering by 20 nm) and a loud one (1 mm steps scattering by

@@ -23,7 +23,8 @@ Relative significance (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.si
     clamped at that experiment's noise floor squared (a gap cut below the floor is cut to
     noise, and counts no further; :func:`relative_terms`). A candidate is significant when
     all hold: (1) the bootstrap over the validation experiments gives a mean log ratio
-    ≤ 0 in fewer than 5 % of resamples; (2) the geometric shrink,
+    ≤ 0 in fewer than 5 % of resamples (an experiment at its floor before and after, log
+    ratio 0, is left out: it says nothing either way); (2) the geometric shrink,
     ``1 − exp(−mean log ratio / 2)``, exceeds the complexity penalty. What does not depend
     on the candidate holds in both modes: the gap before must exceed ``1.5 ×`` the noise
     floor (each experiment weighted by its own floor: there is something to explain), the
