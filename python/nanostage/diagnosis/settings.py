@@ -108,7 +108,9 @@ class DiagnosisSettings:
     #: scoring, for a lag the calibration had absorbed (a consumed case): refitted jointly
     #: it found the truth's 474 Hz within 1 Hz and cut the gaps of the quiet validation
     #: experiments two- to threefold, but the pooled gap rose because the 1 mm step,
-    #: dominated by a run-to-run friction level draw, got worse.
+    #: dominated by a run-to-run friction level draw, got worse. Scored once on fresh seeds
+    #: (docs/benchmarks.md): independent family 2/7, own family 6/7 first picks, no false
+    #: alarm; no better than the pooled rules' earlier scores by what seven cases show.
     significance: str = "relative"
     forward_rounds: int = 3
     forward_top: int = 8
