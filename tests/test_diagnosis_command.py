@@ -171,7 +171,8 @@ def test_a_large_explained_gap_is_not_discarded_for_want_of_validation_moves() -
     fit = cast(Any, SimpleNamespace(values={}, std_errors={}, train_rms_m=1e-7))
     base = np.array([100.0, 1.0, 1.0, 1.0]) * 1e-14
     after = np.array([10.0, 1.0, 1.0, 1.0]) * 1e-14
-    st = DiagnosisSettings()
+    # The pooled rules' bootstrap over validation moves (units); the relative one below.
+    st = DiagnosisSettings(significance="pooled")
 
     def judge(floor: float, settings: DiagnosisSettings) -> CandidateResult:
         return _verdict(
@@ -202,6 +203,12 @@ def test_a_large_explained_gap_is_not_discarded_for_want_of_validation_moves() -
     # A smaller share removed is no large explained gap.
     r = judge(1e-8, dc.replace(st, large_shrink=0.7))
     assert not r.significant
+    # The relative rules leave the three unchanged experiments (log ratio 0) out of the
+    # bootstrap: the one cut tenfold remains, p = 0, whatever the large-gap rule says.
+    for settings in (DiagnosisSettings(), DiagnosisSettings(large_gap_factor=0.0)):
+        r = judge(1e-8, settings)
+        assert r.p_value == 0.0 and r.significant, r.reasons
+        assert r.geometric_shrink == pytest.approx(1.0 - 10.0 ** (-1.0 / 8.0), rel=1e-12)
 
 
 def test_unexplained_gap_names_the_best_partial_explanations() -> None:
