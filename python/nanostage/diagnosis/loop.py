@@ -471,8 +471,9 @@ def diagnose_experiments(
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
 
         bent = sorted({b["parameter"] for f in current_fits for b in at_bounds(f, free)})
+        usual = refine_names(results, st)
         names_top = refine_names(results, st, lag_family=bool(bent))
-        more = names_top[len(refine_names(results, st)) :]
+        more = names_top[len(usual) :]
         if more:
             print_progress(
                 f"  round {rnd + 1}: {', '.join(bent)} at a bound in the model before: "
@@ -1047,7 +1048,6 @@ def _verdict(
     resamples validation moves (``units``/``base_units``) when both are given, else
     experiments."""
     st = ctx.st
-    d = base_ms - ms
     # The rules weigh each validation experiment by its own noise floor (all 1 without
     # kind floors): in units of the overall floor, a quiet experiment's gap counts as much
     # as a loud one's relative to what noise alone gives there. The move units come
@@ -1095,6 +1095,7 @@ def _verdict(
             f"{rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink {shrink:.0%})"
         )
     else:
+        d = base_ms - ms
         du = (
             base_units - units
             if units is not None and base_units is not None and len(units) == len(base_units)

@@ -49,9 +49,10 @@ from .settings import RANKINGS, SIGNIFICANCES, DiagnosisSettings, FloatArray
 _TINY_MS_M2 = 1e-40
 
 
-def _log_ms(ms: FloatArray) -> FloatArray:
-    """log(mean square / m²) per validation experiment, a zero counted as :data:`_TINY_MS_M2`."""
-    out: FloatArray = np.log(np.maximum(ms, _TINY_MS_M2))
+def _log_ms(ms: FloatArray, floor_ms: FloatArray | float = _TINY_MS_M2) -> FloatArray:
+    """log(mean square / m²) per validation experiment, each clamped at ``floor_ms`` (by
+    default a zero counted as :data:`_TINY_MS_M2`)."""
+    out: FloatArray = np.log(np.maximum(ms, np.maximum(floor_ms, _TINY_MS_M2)))
     return out
 
 
@@ -168,7 +169,7 @@ def relative_terms(
     the geometric shrink ``1 − exp(−mean/2)`` (0 without experiments)."""
     before = np.asarray(before_ms, dtype=np.float64)
     after = np.asarray(after_ms, dtype=np.float64)
-    floor = np.maximum(np.asarray(floor_ms, dtype=np.float64), _TINY_MS_M2)
+    floor = np.asarray(floor_ms, dtype=np.float64)
     if not before.shape == after.shape == floor.shape:
         raise ValueError(
             f"relative_terms: {before.shape}, {after.shape} and {floor.shape} experiments "
@@ -176,7 +177,7 @@ def relative_terms(
         )
     if before.size == 0:
         return np.zeros(0), 0.0
-    d: FloatArray = np.log(np.maximum(before, floor)) - np.log(np.maximum(after, floor))
+    d: FloatArray = _log_ms(before, floor) - _log_ms(after, floor)
     return d, 1.0 - math.exp(-0.5 * float(np.mean(d)))
 
 
