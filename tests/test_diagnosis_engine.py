@@ -361,6 +361,13 @@ def test_a_calibration_at_its_bounds_refines_the_whole_lag_family() -> None:
     ]
     off = dc.replace(st, refine_lag_family_at_bounds=False)
     assert refine_names(order, off, lag_family=True) == usual
+    # A missed mark of the traces triggers the same refits, by its own switch.
+    assert refine_names(order, off, missed_marks=True) == refine_names(order, st, lag_family=True)
+    no_marks = dc.replace(st, refine_lag_family_on_missed_marks=False)
+    assert refine_names(order, no_marks, missed_marks=True) == usual
+    assert refine_names(order, no_marks, lag_family=True, missed_marks=True) == refine_names(
+        order, st, lag_family=True
+    )
     assert set(LAG_FAMILY) <= set(CANDIDATES)
 
 

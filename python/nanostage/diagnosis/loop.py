@@ -40,12 +40,13 @@ from .select import (
     significance_mode,
 )
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
-from .signatures import SignatureJudge
+from .signatures import SignatureJudge, misses
 
 FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
 #: The effects that add lag or play to the loop (limit cycles, phase lag): refined as a
-#: family when the model before has a free parameter at its bound
-#: (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`).
+#: family when the model before has a free parameter at its bound or misses a mark of the
+#: traces (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`,
+#: :attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`).
 LAG_FAMILY = (
     "backlash",
     "computation_delay",
@@ -471,12 +472,19 @@ def diagnose_experiments(
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
 
         bent = sorted({b["parameter"] for f in current_fits for b in at_bounds(f, free)})
+        missed = (
+            [str(m["feature"]) for m in misses(judge.measured, judge.simulated(current))]
+            if st.refine_lag_family_on_missed_marks
+            else []
+        )
         usual = refine_names(results, st)
-        names_top = refine_names(results, st, lag_family=bool(bent))
+        names_top = refine_names(results, st, lag_family=bool(bent), missed_marks=bool(missed))
         more = names_top[len(usual) :]
         if more:
+            why = [f"{', '.join(bent)} at a bound"] if bent else []
+            why += [f"marks missed ({', '.join(missed)})"] if missed else []
             print_progress(
-                f"  round {rnd + 1}: {', '.join(bent)} at a bound in the model before: "
+                f"  round {rnd + 1}: the model before has {' and '.join(why)}: "
                 f"refining the lag family too ({', '.join(more)})",
                 progress,
             )
@@ -635,21 +643,28 @@ def command_weights(
 
 
 def refine_names(
-    results: Sequence[CandidateResult], st: DiagnosisSettings, lag_family: bool = False
+    results: Sequence[CandidateResult],
+    st: DiagnosisSettings,
+    lag_family: bool = False,
+    missed_marks: bool = False,
 ) -> list[str]:
     """The candidates of a round refitted from all starts, from its screened results (best
     first): the best :attr:`DiagnosisSettings.refine_top`, and with
     :attr:`DiagnosisSettings.refine_best_friction_model` the best-screened friction-model
     candidate outside them (one at most); with ``lag_family`` (the model before has a free
-    parameter at its bound) and :attr:`DiagnosisSettings.refine_lag_family_at_bounds`,
-    then every other member of :data:`LAG_FAMILY` among them, in screening order."""
+    parameter at its bound) and :attr:`DiagnosisSettings.refine_lag_family_at_bounds`, or
+    with ``missed_marks`` (the model before misses a mark of the traces) and
+    :attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`, then every other member
+    of :data:`LAG_FAMILY` among them, in screening order."""
     names = [r.effect for r in results[: st.refine_top]]
     if st.refine_best_friction_model:
         rest = (r.effect for r in results[st.refine_top :] if r.effect in FRICTION_MODELS)
         best = next(rest, None)
         if best is not None:
             names.append(best)
-    if lag_family and st.refine_lag_family_at_bounds:
+    if (lag_family and st.refine_lag_family_at_bounds) or (
+        missed_marks and st.refine_lag_family_on_missed_marks
+    ):
         names += [r.effect for r in results if r.effect in LAG_FAMILY and r.effect not in names]
     return names
 
