@@ -1028,6 +1028,35 @@ def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None
     }
 
 
+def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The round compares the model before's simulated marks with the measured ones
+    (:func:`~nanostage.diagnosis.signatures.misses`); a miss refits every lag-family
+    candidate with the free parameters, and the progress line names the mark. Turned off,
+    the same miss refits only the usual ones."""
+    import nanostage.diagnosis.loop as loop_mod
+
+    m = step_case(tmp_path, Effects(), seed=4, candidates=("offset_force", "computation_delay"))
+    seen: list[tuple[dict[str, Any], dict[str, Any]]] = []
+
+    def fake_misses(measured: dict[str, Any], simulated: dict[str, Any]) -> list[dict[str, Any]]:
+        seen.append((measured, simulated))
+        return [{"feature": "ramp_level_v", "measured": 1.0, "simulated": 0.5, "z": 9.0}]
+
+    monkeypatch.setattr(loop_mod, "misses", fake_misses)
+    # No usual refits: the lag family's are the only ones.
+    st = dc.replace(FAST, forward_rounds=1, refine_top=0, crossfit_folds=0)
+    diagnose(m, None, settings=st, progress=True)
+    err = capsys.readouterr().err
+    assert seen and "marks missed (ramp_level_v)" in err
+    assert "refining the lag family too (computation_delay)" in err
+    assert "refit computation_delay" in err and "refit offset_force" not in err
+    off = dc.replace(st, refine_lag_family_on_missed_marks=False)
+    diagnose(m, None, settings=off, progress=True)
+    assert "marks missed" not in capsys.readouterr().err
+
+
 def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
     """The simulation cache changes no result: the report without it is the same to the last
     bit, and with it some simulations were looked up (a refit repeats its screening's
