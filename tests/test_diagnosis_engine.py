@@ -1047,14 +1047,25 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
     monkeypatch.setattr(loop_mod, "misses", fake_misses)
     # No usual refits: the lag family's are the only ones.
     st = dc.replace(FAST, forward_rounds=1, refine_top=0, crossfit_folds=0)
-    diagnose(m, None, settings=st, progress=True)
+    d = diagnose(m, tmp_path / "out", settings=st, progress=True, figures=False)
     err = capsys.readouterr().err
+    assert d.report["lag_family_refits"] == [
+        {
+            "round": 1,
+            "at_bounds": [],
+            "missed_marks": ["ramp_level_v"],
+            "refined": ["computation_delay"],
+        }
+    ]
+    md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    assert "misses the marks `ramp_level_v`" in md and "too: `computation_delay`." in md
     assert seen and "marks missed (ramp_level_v)" in err
     assert "refining the lag family too (computation_delay)" in err
     assert "refit computation_delay" in err and "refit offset_force" not in err
     off = dc.replace(st, refine_lag_family_on_missed_marks=False)
-    diagnose(m, None, settings=off, progress=True)
+    d_off = diagnose(m, None, settings=off, progress=True)
     assert "marks missed" not in capsys.readouterr().err
+    assert d_off.report["lag_family_refits"] == []
 
 
 def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:

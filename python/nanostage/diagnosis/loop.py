@@ -364,6 +364,8 @@ def diagnose_experiments(
         st.threads,
     )
     signature_distances: list[dict[str, float]] = []
+    # Per round whose lag family was refined beyond the usual refits: why, and which.
+    lag_refits: list[dict[str, Any]] = []
 
     def signature_chi_squares(tied: Sequence[CandidateResult]) -> list[tuple[float, int]]:
         out = judge.tie_chi_squares([r.fit.system for r in tied])
@@ -481,6 +483,9 @@ def diagnose_experiments(
         names_top = refine_names(results, st, lag_family=bool(bent), missed_marks=bool(missed))
         more = names_top[len(usual) :]
         if more:
+            lag_refits.append(
+                {"round": rnd + 1, "at_bounds": bent, "missed_marks": missed, "refined": more}
+            )
             why = [f"{', '.join(bent)} at a bound"] if bent else []
             why += [f"marks missed ({', '.join(missed)})"] if missed else []
             print_progress(
@@ -590,6 +595,7 @@ def diagnose_experiments(
         # Per round, the signature χ² of each candidate a tie put before the judge (the last
         # evaluation of each, after any refit).
         "signature_distances": signature_distances,
+        "lag_family_refits": lag_refits,
         "cache": ctx.cache,
         "simulations": {
             "simulated": None if ctx.cache is None else ctx.cache.misses,

@@ -531,6 +531,26 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     return "\n".join(lines) + "\n" if lines else ""
 
 
+def _lag_family_lines(refits: Any) -> list[str]:
+    """One line per round whose lag family was refitted beyond the usual refits, and why
+    (report ``lag_family_refits``)."""
+    out: list[str] = []
+    for d in refits if isinstance(refits, list | tuple) else []:
+        why = []
+        if d.get("at_bounds"):
+            why.append("has " + ", ".join(f"`{_md_escape(str(p))}`" for p in d["at_bounds"]))
+            why[-1] += " at a bound"
+        if d.get("missed_marks"):
+            marks = ", ".join(f"`{_md_escape(str(m))}`" for m in d["missed_marks"])
+            why.append(f"misses the marks {marks} (see *Signatures*)")
+        names = ", ".join(f"`{_md_escape(str(n))}`" for n in d.get("refined") or [])
+        out.append(
+            f"Round {d.get('round')}: the model before {' and '.join(why)}, so the lag family "
+            f"was refitted with the free parameters too: {names}.\n"
+        )
+    return out
+
+
 def _tie_signatures(report: Mapping[str, Any], effect: str) -> str:
     """The signature χ² of the candidates tied with a selected ``effect`` (its round's
     entry of ``tie_signatures``), in words; empty without one."""
@@ -833,6 +853,7 @@ def markdown_report(
                 "report.json.\n"
             )
             out.append(_candidates_table(cands))
+            out.extend(_lag_family_lines(report.get("lag_family_refits")))
         else:
             out.append(_records_table(cands) if cands else "No candidates.\n")
     rounds = report.get("forward_selection")
@@ -927,6 +948,7 @@ def markdown_report(
         "indistinguishable",
         "tie_break",
         "tie_signatures",
+        "lag_family_refits",
         "crossfit",
         "evidence",
         "advice",

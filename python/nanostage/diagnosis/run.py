@@ -871,6 +871,8 @@ def assemble_report(
             for i, d in enumerate(out.get("signature_distances") or [])
             if d
         ],
+        # Per round whose lag family was refitted beyond the usual refits: why.
+        "lag_family_refits": [dict(d) for d in out.get("lag_family_refits") or []],
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": single_best.effect if single_best else None,
