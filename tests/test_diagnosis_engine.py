@@ -1045,6 +1045,14 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
         return [{"feature": "ramp_level_v", "measured": 1.0, "simulated": 0.5, "z": 9.0}]
 
     monkeypatch.setattr(loop_mod, "misses", fake_misses)
+    judged: list[System] = []
+    simulated = loop_mod.SignatureJudge.simulated
+
+    def recording(self: Any, system: System) -> Any:
+        judged.append(system)
+        return simulated(self, system)
+
+    monkeypatch.setattr(loop_mod.SignatureJudge, "simulated", recording)
     # No usual refits: the lag family's are the only ones.
     st = dc.replace(FAST, forward_rounds=1, refine_top=0, crossfit_folds=0)
     d = diagnose(m, tmp_path / "out", settings=st, progress=True, figures=False)
@@ -1060,6 +1068,11 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
     md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert "misses the marks `ramp_level_v`" in md and "too: `computation_delay`." in md
     assert seen and "marks missed (ramp_level_v)" in err
+    # The marks judged are the calibrated model's (the free Coulomb force as fitted), not
+    # the manifest's model before calibration.
+    fitted = d.report["nominal_parameters"]["plant.dahl.coulomb_force_n"]["value"]
+    assert fitted != presets.seed(1e-3).plant.dahl.coulomb_force_n
+    assert get_path(judged[0], "plant.dahl.coulomb_force_n") == fitted
     assert "refining the lag family too (computation_delay)" in err
     assert "refit computation_delay" in err and "refit offset_force" not in err
     off = dc.replace(st, refine_lag_family_on_missed_marks=False)

@@ -475,8 +475,8 @@ def diagnose_experiments(
 
         bent = sorted({b["parameter"] for f in current_fits for b in at_bounds(f, free)})
         missed = (
-            [str(m["feature"]) for m in misses(judge.measured, judge.simulated(current))]
-            if st.refine_lag_family_on_missed_marks
+            _missed_marks(judge, current_fits[0].system)
+            if st.refine_lag_family_on_missed_marks and current_fits
             else []
         )
         usual = refine_names(results, st)
@@ -646,6 +646,19 @@ def command_weights(
     cmd = command_floors_v(experiments, count_m, floors, gains)
     _, unusable = command_problems(experiments, systems)
     return {n: floors[n] / f for n, f in cmd.items() if f > 0.0 and n not in unusable}
+
+
+def _missed_marks(judge: SignatureJudge, system: System) -> list[str]:
+    """The marks of the traces the fitted model before (``system``, the first fold's fit)
+    misses by more than three standard errors (:func:`~.signatures.misses`); none when the
+    traces have no mark or its simulation fails (the round's fits report such failures)."""
+    if not judge.measured:
+        return []
+    try:
+        simulated = judge.simulated(system)
+    except (RuntimeError, ValueError):
+        return []
+    return [str(m["feature"]) for m in misses(judge.measured, simulated)]
 
 
 def refine_names(
