@@ -129,14 +129,17 @@ class DiagnosisSettings:
     #: 12th of 17 on a consumed case, and its joint refit found the truth's bandwidth).
     #: Costs one full refit per family member on those cases only.
     refine_lag_family_at_bounds: bool = True
-    #: Also refine every candidate of the lag family when the model before misses a mark
-    #: of the traces by more than three standard errors
+    #: Also refine every candidate of the lag family when the model before, as
+    #: calibrated, misses a mark of the traces by more than three standard errors
     #: (:func:`~nanostage.diagnosis.signatures.misses`: the limit cycle in holds, the
     #: command on ramps or at rest). A calibration bent to stand in for a lag shows there
     #: before any parameter reaches a bound: on a consumed amplifier-lag case the
     #: calibrated friction fell until the steps' slews matched, the ramps' command level
-    #: fell 70 standard errors short, the held screening ranked the lag 12th of 17, and
-    #: its joint fit cut the validation gap by 62 %.
+    #: fell 70 standard errors short, the held screening left the lag outside the
+    #: refitted five, and its joint fit cut the validation gap by 62 %. On the
+    #: independent family the ramps' command is missed in nearly every case, so this
+    #: costs up to five more full refits there; on the own family (no command) it acts
+    #: where a limit cycle is missed (backlash and delay cases).
     refine_lag_family_on_missed_marks: bool = True
     #: Break a tie by the Occam factor (:func:`log_occam_factor`): among the significant
     #: candidates the validation data cannot tell from the best (:func:`indistinguishable`),
