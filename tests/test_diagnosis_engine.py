@@ -78,6 +78,7 @@ from nanostage.diagnosis.select import (
     CandidateResult,
     log_occam_factor,
     pick_winner,
+    rank_key,
     relative_terms,
     significance_mode,
 )
@@ -764,6 +765,7 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
             SimpleNamespace(
                 effect=name,
                 validation_ms=a,
+                log_ms=np.log(a),
                 validation_rms_m=float(np.sqrt(a.mean())),
                 significant=significant,
             ),
@@ -788,6 +790,53 @@ def test_indistinguishable_candidates_are_reported_as_ties() -> None:
     assert best_single(rounds[0], ["asymmetric_friction", "backlash"]) is best
     assert best_single(rounds[0], []) is same
     assert best_single([], []) is None
+
+
+def test_the_relative_ranking_counts_no_gap_below_its_floor() -> None:
+    """A change of an experiment's gap below its noise floor neither ranks nor ties: with
+    the floors known, two micro-steps at 5 and 25 nm under a 29 nm floor count alike, and
+    the candidate that cuts the loud experiments tenfold ranks first and is told apart;
+    without them, the fivefold change below the floor would have put it behind."""
+    from nanostage.diagnosis.fit import Fit
+
+    fit = Fit(values={}, std_errors={}, train_rms_m=1e-7, n_evaluations=1, system=None)  # type: ignore[arg-type]
+    floor_ms = np.full(4, (29e-9) ** 2)
+
+    def res(name: str, rms_nm: list[float], floors: np.ndarray | None) -> CandidateResult:
+        ms = (np.asarray(rms_nm) * 1e-9) ** 2
+        return CandidateResult(
+            effect=name,
+            fit=fit,
+            fold_fits=[fit],
+            validation_ms=ms,
+            validation_command_ms=[None] * len(ms),
+            command_ratio=None,
+            validation_rms_m=float(np.sqrt(ms.mean())),
+            shrink=0.0,
+            weighted_shrink=0.0,
+            geometric_shrink=0.0,
+            p_value=1.0,
+            significant=True,
+            reasons=[],
+            validation_floor_ms=floors,
+        )
+
+    for floors in (floor_ms, None):
+        cut = res("offset_force", [420.0, 25.0, 71.0, 26.0], floors)
+        flat = res("voltage_saturation", [4238.0, 5.0, 115.0, 4.0], floors)
+        key = rank_key("relative")
+        if floors is not None:
+            assert key(cut) < key(flat)
+            assert not indistinguishable(cut, flat, "relative")
+            # Both micro-steps at the floor: the geometric gap counts each as 29 nm.
+            g = (420.0 * 29.0 * 71.0 * 29.0) ** 0.25 * 1e-9
+            assert cut.geometric_rms_m == pytest.approx(g, rel=1e-12)
+        else:
+            assert key(cut) > key(flat)
+    # Below the floor everywhere, two candidates are the same.
+    a = res("a", [5.0, 6.0, 7.0, 8.0], floor_ms)
+    b = res("b", [20.0, 25.0, 10.0, 28.0], floor_ms)
+    assert a.mean_log_ms == b.mean_log_ms and indistinguishable(a, b, "relative")
 
 
 def test_log_occam_factor_by_hand() -> None:
@@ -846,6 +895,7 @@ def test_a_tie_goes_to_the_candidate_with_the_larger_occam_factor() -> None:
         return SimpleNamespace(
             effect=name,
             validation_ms=a,
+            log_ms=np.log(a),
             validation_rms_m=float(np.sqrt(a.mean())),
             significant=significant,
             log_occam=occam,

@@ -1093,7 +1093,8 @@ def _verdict(
     wrms0 = math.sqrt(float(np.mean(w * base_ms)))
     wrms1 = math.sqrt(float(np.mean(w * ms)))
     weighted_shrink = 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
-    log_ratios, geometric_shrink = relative_terms(base_ms, ms, ctx.floor**2 / w)
+    floor_ms = ctx.floor**2 / w
+    log_ratios, geometric_shrink = relative_terms(base_ms, ms, floor_ms)
     penalty = st.penalty_base + st.penalty_per_param * k_params
     weighted = bool(np.any(w != 1.0))
     wtag = " (floor-weighted)" if weighted else ""
@@ -1201,4 +1202,5 @@ def _verdict(
         index=index,
         k_params=k_params,
         validation_units=units,
+        validation_floor_ms=floor_ms,
     )

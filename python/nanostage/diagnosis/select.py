@@ -103,21 +103,34 @@ class CandidateResult:
     validation_units: FloatArray | None = None
     #: Log Occam factor of the candidate's own parameters (:func:`log_occam_factor`).
     log_occam: float = 0.0
+    #: Each validation experiment's noise floor as a mean square, m² (None: none known):
+    #: the relative ranking counts no experiment's gap below it, as the relative
+    #: significance does not (:func:`relative_terms`).
+    validation_floor_ms: FloatArray | None = None
     #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
     units: Mapping[str, str] = field(default_factory=dict)
 
     @property
+    def log_ms(self) -> FloatArray:
+        """log(mean-square gap / m²) per validation experiment, each clamped at its noise
+        floor (:attr:`validation_floor_ms`, where known): a change below the floor is
+        noise, and neither ranks nor ties a candidate."""
+        if self.validation_floor_ms is None:
+            return _log_ms(self.validation_ms)
+        return _log_ms(self.validation_ms, self.validation_floor_ms)
+
+    @property
     def mean_log_ms(self) -> float:
-        """Mean over the validation experiments of log(mean-square gap / m²): the relative
-        ranking's key (``inf`` without validation experiments)."""
+        """Mean over the validation experiments of :attr:`log_ms`: the relative ranking's
+        key (``inf`` without validation experiments)."""
         if len(self.validation_ms) == 0:
             return math.inf
-        return float(np.mean(_log_ms(self.validation_ms)))
+        return float(np.mean(self.log_ms))
 
     @property
     def geometric_rms_m(self) -> float:
-        """The geometric mean over the validation experiments of their RMS gaps, m (the
-        relative ranking's key in metres)."""
+        """The geometric mean over the validation experiments of their RMS gaps, each at
+        least its noise floor, m (the relative ranking's key in metres)."""
         return math.exp(0.5 * self.mean_log_ms)
 
     def to_dict(self) -> dict[str, Any]:
@@ -213,7 +226,7 @@ def indistinguishable(a: CandidateResult, b: CandidateResult, ranking: str = "re
     fewer than two validation experiments nothing can be told apart."""
     rank_key(ranking)  # checks the name
     if ranking == "relative":
-        la, lb = _log_ms(a.validation_ms), _log_ms(b.validation_ms)
+        la, lb = a.log_ms, b.log_ms
         d = la - lb
         # Geometric-mean RMS within 25 %: half the mean log ratio within log 1.25.
         close = abs(float(np.mean(la)) - float(np.mean(lb))) <= 2.0 * math.log(1.25)
