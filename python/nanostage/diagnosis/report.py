@@ -843,8 +843,9 @@ def markdown_report(
                 "each experiment's mean square counted equally)"
                 if report.get("ranking", "pooled") == "pooled"
                 else "best geometric gap first (the geometric mean over the validation "
-                "experiments of their RMS gaps: each experiment counts by the factor a "
-                "candidate cuts its own gap; validation gap: the pooled RMS)"
+                "experiments of their RMS gaps, each at least its noise floor: each "
+                "experiment counts by the factor a candidate cuts its own gap above the "
+                "floor; validation gap: the pooled RMS)"
             )
             out.append(
                 f"Round 1: every candidate added to the calibrated nominal model alone, "

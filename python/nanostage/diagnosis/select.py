@@ -104,8 +104,8 @@ class CandidateResult:
     #: Log Occam factor of the candidate's own parameters (:func:`log_occam_factor`).
     log_occam: float = 0.0
     #: Each validation experiment's noise floor as a mean square, m² (None: none known):
-    #: the relative ranking counts no experiment's gap below it, as the relative
-    #: significance does not (:func:`relative_terms`).
+    #: the relative ranking counts no experiment's gap below it, like the relative
+    #: significance (:func:`relative_terms`).
     validation_floor_ms: FloatArray | None = None
     #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
     units: Mapping[str, str] = field(default_factory=dict)
