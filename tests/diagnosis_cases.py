@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 
 import nanostage as ns
+from nanostage.diagnosis.fit import Fit
+from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effects import Effects, StochasticFriction
 from nanostage.experiment import Experiment
@@ -75,3 +77,35 @@ def step_case(
         ]
     (folder / "m.toml").write_text("\n".join(lines), encoding="utf-8")
     return folder / "m.toml"
+
+
+def candidate_result(
+    name: str,
+    validation_ms: Sequence[float],
+    *,
+    rms_m: float,
+    occam: float = 0.0,
+    floor_ms: np.ndarray | None = None,
+) -> CandidateResult:
+    """A significant candidate result with the given per-experiment validation mean squares
+    (m²), pooled RMS gap ``rms_m`` (also its training gap), Occam factor and floors, and
+    nothing fitted: for the ranking, tie and tie-break rules."""
+    fit = Fit(values={}, std_errors={}, train_rms_m=rms_m, n_evaluations=1, system=None)  # type: ignore[arg-type]
+    ms = np.asarray(validation_ms, dtype=float)
+    return CandidateResult(
+        effect=name,
+        fit=fit,
+        fold_fits=[fit],
+        validation_ms=ms,
+        validation_command_ms=[None] * len(ms),
+        command_ratio=None,
+        validation_rms_m=rms_m,
+        shrink=0.5,
+        weighted_shrink=0.5,
+        geometric_shrink=0.5,
+        p_value=0.0,
+        significant=True,
+        reasons=[],
+        log_occam=occam,
+        validation_floor_ms=floor_ms,
+    )

@@ -15,7 +15,7 @@ from typing import Any, cast
 
 import numpy as np
 import pytest
-from diagnosis_cases import step_case
+from diagnosis_cases import candidate_result, step_case
 from hypothesis import given, settings
 from hypothesis import strategies as st_h
 
@@ -797,29 +797,11 @@ def test_the_relative_ranking_counts_no_gap_below_its_floor() -> None:
     the floors known, two micro-steps at 5 and 25 nm under a 29 nm floor count alike, and
     the candidate that cuts the loud experiments tenfold ranks first and is told apart;
     without them, the fivefold change below the floor would have put it behind."""
-    from nanostage.diagnosis.fit import Fit
-
-    fit = Fit(values={}, std_errors={}, train_rms_m=1e-7, n_evaluations=1, system=None)  # type: ignore[arg-type]
     floor_ms = np.full(4, (29e-9) ** 2)
 
     def res(name: str, rms_nm: list[float], floors: np.ndarray | None) -> CandidateResult:
         ms = (np.asarray(rms_nm) * 1e-9) ** 2
-        return CandidateResult(
-            effect=name,
-            fit=fit,
-            fold_fits=[fit],
-            validation_ms=ms,
-            validation_command_ms=[None] * len(ms),
-            command_ratio=None,
-            validation_rms_m=float(np.sqrt(ms.mean())),
-            shrink=0.0,
-            weighted_shrink=0.0,
-            geometric_shrink=0.0,
-            p_value=1.0,
-            significant=True,
-            reasons=[],
-            validation_floor_ms=floors,
-        )
+        return candidate_result(name, list(ms), rms_m=float(np.sqrt(ms.mean())), floor_ms=floors)
 
     for floors in (floor_ms, None):
         cut = res("offset_force", [420.0, 25.0, 71.0, 26.0], floors)

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from diagnosis_cases import candidate_result
 from hypothesis import given, settings
 from hypothesis import strategies as st_h
 
@@ -120,26 +121,7 @@ def test_distance_is_the_chi_square_over_shared_features() -> None:
 
 
 def _result(name: str, rms: float, ms: list[float], occam: float) -> object:
-    from nanostage.diagnosis.fit import Fit
-    from nanostage.diagnosis.select import CandidateResult
-
-    fit = Fit(values={}, std_errors={}, train_rms_m=rms, n_evaluations=1, system=None)  # type: ignore[arg-type]
-    return CandidateResult(
-        effect=name,
-        fit=fit,
-        fold_fits=[fit],
-        validation_ms=np.asarray(ms),
-        validation_command_ms=[None] * len(ms),
-        command_ratio=None,
-        validation_rms_m=rms,
-        shrink=0.5,
-        weighted_shrink=0.5,
-        geometric_shrink=0.5,
-        p_value=0.0,
-        significant=True,
-        reasons=[],
-        log_occam=occam,
-    )
+    return candidate_result(name, ms, rms_m=rms, occam=occam)
 
 
 def test_signatures_narrow_a_tie_and_change_nothing_else() -> None:
