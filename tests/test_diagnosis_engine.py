@@ -70,6 +70,7 @@ from nanostage.diagnosis.run import (
     best_single,
     bound_warnings,
     diagnose,
+    experiment_advice,
     indistinguishable,
     model_gap,
     ties_of_selected,
@@ -81,6 +82,7 @@ from nanostage.diagnosis.select import (
     rank_key,
     relative_terms,
     significance_mode,
+    too_few_to_test,
 )
 from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
 from nanostage.effects import (
@@ -1198,6 +1200,48 @@ def _judge_one_parameter(
     return _verdict(
         "x", [cast(Any, None)], ms, [None] * n, None, 1, base_ms, [None] * n, cast(Any, ctx), 0
     )
+
+
+def test_too_few_informative_experiments_are_counted_and_advised() -> None:
+    """A bootstrap over the experiments above their floors gives p = 0 whenever all of
+    them improve, however few: two experiments above a 20 nm floor (of four; the other two
+    are below it before and after, log ratio 0) both improved make the relative test
+    significant at p = 0, and the result records that two experiments carried it. No test
+    over fewer than five experiments can reach p < 0.05 (an exact sign-flip test gives at
+    least 2⁻ⁿ, 1/16 for four), so the experiment advice says the selection is weak evidence
+    and asks for five; with five informative experiments, or the pooled significance
+    (which resamples moves and counts no experiments), it says nothing of the kind."""
+    assert too_few_to_test(4, 0.05) and not too_few_to_test(5, 0.05)
+    assert too_few_to_test(1, 0.4) and not too_few_to_test(1, 0.6)
+    st = DiagnosisSettings()
+    base_ms = np.array([(400e-9) ** 2, (10e-9) ** 2, (300e-9) ** 2, (12e-9) ** 2])
+    ms = np.array([(200e-9) ** 2, (9e-9) ** 2, (150e-9) ** 2, (11e-9) ** 2])
+    r = _judge_one_parameter(ms, base_ms, 20e-9, np.ones(4), st)
+    assert r.significant and r.p_value == 0.0
+    assert r.informative_experiments == 2
+    fitted = Fit(values={}, std_errors={}, train_rms_m=0.0, n_evaluations=1, system=cast(Any, None))
+    assert dc.replace(r, fit=fitted).to_dict()["informative_validation_experiments"] == 2
+    pooled = _judge_one_parameter(
+        ms, base_ms, 20e-9, np.ones(4), DiagnosisSettings(significance="pooled")
+    )
+    assert pooled.informative_experiments is None
+
+    t = np.arange(400) * 1e-4
+    ref = np.where(t < 0.01, 0.0, np.where(t < 0.02, 1e-4, np.where(t < 0.03, 0.0, 1e-3)))
+    exps = [Experiment(name="e", time_s=t, reference_m=ref, position_m=ref)]
+
+    def weak_advice(result: CandidateResult) -> list[dict[str, Any]]:
+        out = experiment_advice(exps, None, [result], 0.05, selected=[result], p_value=0.05)
+        return [a for a in out if "weak evidence" in a["issue"]]
+
+    (advice,) = weak_advice(r)
+    assert advice["effects"] == ["x"]
+    assert "x rests on 2 validation experiment(s)" in advice["issue"]
+    assert "at least 5 experiments" in advice["experiment"]
+    assert weak_advice(dc.replace(r, informative_experiments=5)) == []
+    assert weak_advice(pooled) == []
+    # Nothing selected: nothing to advise on.
+    assert not any("weak evidence" in a["issue"] for a in experiment_advice(exps, None, [r], 0.05))
 
 
 def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:

@@ -1114,6 +1114,7 @@ def _verdict(
         # nothing for or against the candidate: it is left out of the bootstrap, as a
         # signed-rank test drops zero differences. Kept, two such experiments out of four
         # would hold p at 1/16 whatever the others show.
+        informative: int | None = int(np.count_nonzero(log_ratios))
         p = bootstrap_p(log_ratios[log_ratios != 0.0], st.bootstrap, st.seed + 1000 + index)
         if p >= st.p_value and not large:
             ok = False
@@ -1130,6 +1131,7 @@ def _verdict(
             f"{rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink {shrink:.0%})"
         )
     else:
+        informative = None
         d = base_ms - ms
         du = (
             base_units - units
@@ -1203,4 +1205,5 @@ def _verdict(
         k_params=k_params,
         validation_units=units,
         validation_floor_ms=floor_ms,
+        informative_experiments=informative,
     )

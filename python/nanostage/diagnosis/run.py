@@ -60,7 +60,7 @@ from .objective import (
 )
 from .report import write_report
 from .segments import segment
-from .select import CandidateResult, indistinguishable
+from .select import CandidateResult, indistinguishable, too_few_to_test
 from .settings import DiagnosisSettings, print_progress
 from .signatures import SIGNATURE_UNITS, Feature, SignatureJudge
 from .signatures import distance as signature_distance
@@ -231,6 +231,8 @@ def experiment_advice(
     level_floors: Mapping[str, float] | None = None,
     validation_gap_m2: Mapping[str, float] | None = None,
     ranking: str = "relative",
+    selected: Sequence[CandidateResult] = (),
+    p_value: float = 0.05,
 ) -> list[dict[str, Any]]:
     """What the experiments cannot reveal, and which experiment would. With ``folds``, also
     whether the validation experiments revisit positions their training experiments
@@ -240,8 +242,41 @@ def experiment_advice(
     experiments whose gap such scatter can dominate. With ``validation_gap_m2`` (by
     validation experiment: the sum of squares of its gap before), whether one experiment
     holds more than :data:`MAX_VALIDATION_SHARE` of it, so that the candidates
-    (``results``, best first) are judged on that experiment alone."""
+    (``results``, best first) are judged on that experiment alone. With ``selected`` (the
+    selected effects' results, each from its round), whether an effect's relative
+    significance rests on too few validation experiments above their noise floors for any
+    test over them to reach ``p_value`` (:func:`~nanostage.diagnosis.select.too_few_to_test`)."""
     advice: list[dict[str, Any]] = []
+    few = [
+        r
+        for r in selected
+        if r.informative_experiments is not None
+        and too_few_to_test(r.informative_experiments, p_value)
+        and 0.0 < p_value < 1.0
+    ]
+    if few:
+        # The fewest experiments with 2⁻ⁿ ≤ p_value.
+        need = max(1, math.ceil(math.log2(1.0 / p_value)))
+        advice.append(
+            {
+                "effects": [r.effect for r in few],
+                "issue": "the significance of "
+                + ", ".join(
+                    f"{r.effect} rests on {r.informative_experiments} validation "
+                    f"experiment(s) with a gap above their noise floor (bootstrap p = "
+                    f"{r.p_value:.3f})"
+                    for r in few
+                )
+                + f": a bootstrap over so few gives p = 0 whenever all of them improve, and "
+                f"no test over them can reach p < {p_value:g} (an exact sign-flip test "
+                f"gives at least 2⁻ⁿ), so the selection is weak evidence of a consistent "
+                "improvement",
+                "experiment": f"validate on at least {need} experiments whose gap lies above "
+                "the noise floor (one of each kind the training has: step, ramp, "
+                "micro-step, reversal, dwell), so that the improvement can show as "
+                "consistent",
+            }
+        )
     total_m2 = sum((validation_gap_m2 or {}).values())
     if validation_gap_m2 and len(validation_gap_m2) > 1 and total_m2 > 0.0:
         name, top_m2 = max(validation_gap_m2.items(), key=lambda kv: kv[1])
@@ -909,6 +944,11 @@ def assemble_report(
                 n: float(v["sum_sq_m2"]) for n, v in before["per_experiment"].items()
             },
             ranking=st.ranking,
+            selected=[
+                next(r for r in rnd if r.effect == name)
+                for rnd, name in zip(rounds, out["selected"], strict=False)
+            ],
+            p_value=st.p_value,
         ),
         "level_scatter": out.get("level_scatter"),
         "level_floors": dict(out.get("level_floors") or {}),

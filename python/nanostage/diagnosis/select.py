@@ -66,6 +66,7 @@ __all__ = [
     "pick_winner",
     "relative_terms",
     "significance_mode",
+    "too_few_to_test",
 ]
 
 
@@ -107,6 +108,10 @@ class CandidateResult:
     #: the relative ranking counts no experiment's gap below it, like the relative
     #: significance (:func:`relative_terms`).
     validation_floor_ms: FloatArray | None = None
+    #: How many validation experiments the relative significance's bootstrap resampled:
+    #: those whose gap lies above their noise floor before or after (None: the pooled
+    #: significance, which resamples moves). See :func:`too_few_to_test`.
+    informative_experiments: int | None = None
     #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
     units: Mapping[str, str] = field(default_factory=dict)
 
@@ -144,6 +149,7 @@ class CandidateResult:
             "geometric_shrink": self.geometric_shrink,
             "significant": self.significant,
             "p_value": self.p_value,
+            "informative_validation_experiments": self.informative_experiments,
             "command_ratio": self.command_ratio,
             "parameters": {
                 n: {"value": v, "std_error": self.fit.std_errors.get(n), "unit": units.get(n)}
@@ -160,6 +166,15 @@ class CandidateResult:
             "validation_rms_by_experiment_m": [float(math.sqrt(m)) for m in self.validation_ms],
             "why": self.reasons,
         }
+
+
+def too_few_to_test(n: int, p_value: float) -> bool:
+    """Whether ``n`` validation experiments are too few for any test over them to reach
+    ``p_value``: an exact sign-flip test over ``n`` values cannot give less than 2⁻ⁿ (all
+    of them improved), so ``n`` < log₂(1/``p_value``) (fewer than 5 at 0.05). The bootstrap
+    the relative significance uses gives p = 0 whenever all ``n`` improve, however few, small
+    and scattered they are: below this count its p is no evidence of consistency."""
+    return 0.5**n > p_value
 
 
 def bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:
