@@ -50,6 +50,7 @@ from nanostage.diagnosis.loop import (
     _judge,
     _refit_control,
     _verdict,
+    cross_judge_split,
     crossfit_folds,
     crossfit_models,
     refine_names,
@@ -1702,3 +1703,60 @@ def test_parameters_at_their_bounds_are_found_and_named() -> None:
     assert "plant.k = 1.05e+06 at its lower bound 1e+06" in warns[0]
     assert bound_warnings([], []) == []
     assert "still at their bounds" in bound_warnings([], rows[:1])[0]
+
+
+def test_cross_judge_split_holds_out_every_experiment_once() -> None:
+    for n in range(2, 14):
+        for k in (0, 1, 2, 3, 5, 20):
+            folds = cross_judge_split(n, k)
+            assert len(folds) == max(2, min(k, n))
+            assert sorted(i for f in folds for i in f) == list(range(n))
+            assert all(f for f in folds)
+
+
+def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With ``cross_judge_folds``, each round's refitted candidates and the model before are
+    refitted on all experiments but each fold's held-out ones (training experiments held
+    out too), one local fit each; the round selects by these results, and the report lists
+    them per round."""
+    import nanostage.diagnosis.fit as eng
+
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    man = load_manifest(m)
+    (fold,) = man.splits()
+    order = [*fold.train, *fold.validate]
+    held_out = [{order[i] for i in f} for f in cross_judge_split(len(order), 2)]
+    names = set(order)
+    fold_sets = [frozenset(names - h) for h in held_out]
+    seen: list[tuple[frozenset[str], int]] = []
+    real = eng.FitProblem.fit
+
+    def recording(self: FitProblem, n_starts: int, *a: Any, **kw: Any) -> Fit:
+        seen.append((frozenset(e.name for e in self.experiments), n_starts))
+        return real(self, n_starts, *a, **kw)
+
+    monkeypatch.setattr(eng.FitProblem, "fit", recording)
+    st = dc.replace(FAST, cross_judge_folds=2, crossfit_folds=0)
+    d = diagnose(m, None, settings=st, progress=False)
+    r = d.report
+    assert r["selected"] == ["asymmetric_friction"]
+    cj = r["cross_judged"]
+    assert [x["round"] for x in cj] == list(range(1, len(cj) + 1)) and cj
+    # Round 1 judged every refitted candidate; the selection is its first significant one.
+    first = [c["effect"] for c in cj[0]["candidates"]]
+    assert "asymmetric_friction" in first
+    best = next(c for c in cj[0]["candidates"] if c["significant"])
+    assert best["effect"] == "asymmetric_friction"
+    # Judged on every experiment (one mean square each), in the folds' order.
+    assert len(best["validation_rms_by_experiment_m"]) == len(order)
+    # Per round and fold: the model before and each judged candidate, one local fit each,
+    # on exactly the experiments the fold does not hold out.
+    for fs in fold_sets:
+        fits = [n for s, n in seen if s == fs]
+        assert set(fits) == {1}
+        assert len(fits) == sum(1 + len(x["candidates"]) for x in cj)
+    off = diagnose(m, None, settings=dc.replace(st, cross_judge_folds=0), progress=False)
+    assert off.report["cross_judged"] == []

@@ -59,6 +59,7 @@ LAG_FAMILY = (
 Split = tuple[Sequence[Experiment], Sequence[Experiment]]
 
 __all__ = [
+    "cross_judge_split",
     "crossfit_folds",
     "crossfit_models",
     "diagnose_experiments",
@@ -223,6 +224,7 @@ class _Ctx:
         screen_starts: int = 1,
         scan_starts: int = 1,
         hold: bool = False,
+        local: bool = False,
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
@@ -231,13 +233,22 @@ class _Ctx:
         and each validation move's share of its experiment's mean square (:func:`move_units`;
         they sum to the experiment's). With ``hold`` (screening, after the calibration) the
         free nominal parameters stay at each fold's warm values and only ``params`` are
-        fitted (:attr:`DiagnosisSettings.screen_holds_nominal`)."""
+        fitted (:attr:`DiagnosisSettings.screen_holds_nominal`). With ``local``, one local
+        fit per fold from the parameters' initial values (each fold's warm free values and
+        the params' own): no scan, no other start."""
         fits, ms, residuals = [], [], []
         units: list[float] = []
         command: list[float | None] = []
         for i, (train, validate) in enumerate(self.folds):
             warm = self.warm[i] if i < len(self.warm) else {}
-            if hold and warm:
+            free = [
+                (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
+                for n, p in self.free
+            ]
+            if local:
+                prob = self.problem(free + list(params), self.builder(base, apply_extra), train)
+                f = prob.fit(1, self.st, seed)
+            elif hold and warm:
                 f, prob = self._fit_held(
                     base,
                     params,
@@ -250,10 +261,6 @@ class _Ctx:
                     scan_starts,
                 )
             else:
-                free = [
-                    (n, dataclasses.replace(p, initial=warm[n]) if n in warm else p)
-                    for n, p in self.free
-                ]
                 prob = self.problem(free + list(params), self.builder(base, apply_extra), train)
                 # Two starts at least: the warm values, and the manifest's (prior) values.
                 prior = [p.initial for _, p in self.free] + [p.initial for _, p in params]
@@ -435,6 +442,9 @@ def diagnose_experiments(
             )
     selected: list[str] = []
     rounds: list[list[CandidateResult]] = []
+    # Per round with :attr:`DiagnosisSettings.cross_judge_folds`: its refitted candidates
+    # judged on every experiment (:func:`_cross_judge`), best first.
+    cross_judged: list[list[CandidateResult]] = []
     refits: list[dict[str, Any]] = []
     current = nominal
     current_fits = nominal_fits
@@ -546,7 +556,29 @@ def diagnose_experiments(
         if rnd == 0:
             pool_names = [r.effect for r in results]
         signature_distances.append({})
-        best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
+        if st.cross_judge_folds > 1 and len(ctx.folds) == 1:
+            # Judged again on every experiment: the round picks among its refitted
+            # candidates by these results, and selects that candidate's fit above.
+            pool = [(by_name[r.effect][1], r) for r in results if r.effect not in held]
+            n_all = len(ctx.folds[0][0]) + len(ctx.folds[0][1])
+            print_progress(
+                f"  round {rnd + 1}: judging the {len(pool)} refitted candidates again on all "
+                f"{n_all} experiments ({len(cross_judge_split(n_all, st.cross_judge_folds))} "
+                "folds)",
+                progress,
+            )
+            judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
+            cross_judged.append(judged)
+            pick = pick_winner(judged, st, signature_chi_squares, st.signature_margin)
+            best = None if pick is None else next(r for r in results if r.effect == pick.effect)
+            if pick is not None:
+                print_progress(
+                    f"  round {rnd + 1}: {pick.effect} judged on all experiments: geometric "
+                    f"shrink {pick.geometric_shrink:.1%}, p = {pick.p_value:.3f}",
+                    progress,
+                )
+        else:
+            best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         while best is not None and best.effect in held:
             # A selected effect is fitted with the free parameters too: a winner known from
             # its held screening only is refitted from all starts, and the round picks
@@ -583,6 +615,7 @@ def diagnose_experiments(
         "experiment_floors_m": floors,
         "kind_floors": st.kind_floors,
         "rounds": rounds,
+        "cross_judged": cross_judged,
         "selected": selected,
         "selected_effects": list(ctx.selected_effects),
         "final": current_fits[0],
@@ -918,6 +951,84 @@ def crossfit_models(
     with ThreadPoolExecutor(max_workers=threads) as pool:
         pairs = list(pool.map(fit_pair, jobs) if threads > 1 else map(fit_pair, jobs))
     return [(judged, b, a) for (_, judged), (b, a) in zip(jobs, pairs, strict=True)]
+
+
+def cross_judge_split(n: int, k: int) -> list[list[int]]:
+    """The held-out indices of each fold of :func:`_cross_judge` over ``n`` experiments:
+    fold ``j`` holds out ``j, j + k, j + 2k, …`` (round robin over the training experiments
+    then the validation ones, so each fold holds a mix of kinds); every experiment is held
+    out once. ``k`` is clipped to [2, n]."""
+    k = max(2, min(k, n))
+    return [list(range(j, n, k)) for j in range(k)]
+
+
+def _cross_judge(
+    ctx: _Ctx,
+    current: System,
+    current_fits: Sequence[Fit],
+    pool: Sequence[tuple[Candidate, CandidateResult]],
+) -> list[CandidateResult]:
+    """The candidates of ``pool`` (each with its refitted result) judged again on every
+    experiment, training ones included (:attr:`DiagnosisSettings.cross_judge_folds`): for
+    each fold of :func:`cross_judge_split` the model before and each candidate are refitted
+    by one local fit (from the model before's fitted free values, and from the candidate's
+    fitted free and own values; a delay keeps its setting) on the other experiments, and
+    judged by the same rules on the held-out ones. Returns the candidates' results in these
+    terms, best first by the ranking."""
+    st = ctx.st
+    train, validate = ctx.folds[0]
+    exps = [*train, *validate]
+    held = cross_judge_split(len(exps), st.cross_judge_folds)
+    folds = [
+        ([e for i, e in enumerate(exps) if i not in out], [exps[i] for i in out]) for out in held
+    ]
+    base_warm = _free_values(current_fits[0], ctx.free)
+    cj = dataclasses.replace(ctx, folds=folds, warm=[dict(base_warm) for _ in folds])
+    _, base_ms, _, base_cmd, base_units = cj.fit_and_validate(
+        current, (), lambda s, v: s, 1, st.seed, local=True
+    )
+
+    def one(item: tuple[Candidate, CandidateResult]) -> CandidateResult:
+        cand, r = item
+        warm = _free_values(r.fold_fits[0], ctx.free)
+        c = dataclasses.replace(cj, warm=[dict(warm) for _ in folds])
+        params: list[tuple[str, Param]] = []
+        apply: Callable[[System, Sequence[float]], System] = cand.apply
+        if cand.discrete:
+            assert r.setting is not None
+            apply = _at_setting(cand, r.setting)
+        else:
+            params = [
+                (
+                    f"{cand.name}.{q.name}",
+                    dataclasses.replace(q, initial=r.fit.values[f"{cand.name}.{q.name}"]),
+                )
+                for q in cand.params
+            ]
+        fits, ms, _, cmd, units = c.fit_and_validate(
+            current, params, apply, 1, st.seed + r.index, local=True
+        )
+        v = _verdict(
+            cand.name,
+            fits,
+            ms,
+            cmd,
+            r.setting,
+            r.k_params,
+            base_ms,
+            base_cmd,
+            cj,
+            r.index,
+            units,
+            base_units,
+        )
+        return dataclasses.replace(v, log_occam=r.log_occam, units=r.units)
+
+    threads = max(1, min(st.parallel_candidates, len(pool)))
+    with ThreadPoolExecutor(max_workers=threads) as ex:
+        out = list(ex.map(one, pool) if threads > 1 else map(one, pool))
+    out.sort(key=rank_key(st.ranking))
+    return out
 
 
 def _refit_control(

@@ -896,7 +896,18 @@ def assemble_report(
         "gap_before": before,
         "candidates": candidates,
         "selected": list(out["selected"]),
-        "indistinguishable": ties_of_selected(rounds, out["selected"], st.ranking),
+        # With the cross-judging, the ties of the results the rounds selected by.
+        "indistinguishable": ties_of_selected(
+            out.get("cross_judged") or rounds, out["selected"], st.ranking
+        ),
+        "cross_judged": [
+            {
+                "round": i + 1,
+                "folds": st.cross_judge_folds,
+                "candidates": [r.to_dict() for r in rnd],
+            }
+            for i, rnd in enumerate(out.get("cross_judged") or [])
+        ],
         "ranking": st.ranking,
         "significance": st.significance,
         "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",

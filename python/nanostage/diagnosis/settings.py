@@ -211,6 +211,12 @@ class DiagnosisSettings:
     #: 0 turns it off): each validation experiment judged by the nominal and the selected
     #: model refitted on all the other experiments.
     crossfit_folds: int = 3
+    #: Folds of the cross-judging of each round's refitted candidates (≤ 1: off; only with
+    #: one train/validate split): every experiment, training ones included, is held out
+    #: once, the model before and each refitted candidate are refitted locally on the
+    #: others, and the round selects by the same rules over all experiments instead of the
+    #: validation ones alone (:func:`~nanostage.diagnosis.loop._cross_judge`).
+    cross_judge_folds: int = 3
     #: Candidates fitted at once within a round (Python threads; each fit's simulations
     #: still run as batches on ``threads`` threads). The results do not depend on it.
     parallel_candidates: int = 2
