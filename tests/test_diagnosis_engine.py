@@ -67,6 +67,7 @@ from nanostage.diagnosis.objective import (
     noise_floor_m,
     simulate_readings_and_commands,
 )
+from nanostage.diagnosis.report import markdown_report
 from nanostage.diagnosis.run import (
     best_single,
     bound_warnings,
@@ -1758,5 +1759,12 @@ def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
         fits = [n for s, n in seen if s == fs]
         assert set(fits) == {1}
         assert len(fits) == sum(1 + len(x["candidates"]) for x in cj)
+    # report.md shows the cross-judged round as a table, one row per judged candidate.
+    md = markdown_report(r)
+    assert "## Judged on every experiment" in md
+    section = md.split("## Judged on every experiment")[1].split("\n## ")[0]
+    rows = [line for line in section.splitlines() if line.startswith("| 1 | `")]
+    assert [x.split("`")[1] for x in rows] == first
     off = diagnose(m, None, settings=dc.replace(st, cross_judge_folds=0), progress=False)
     assert off.report["cross_judged"] == []
+    assert "## Judged on every experiment" not in markdown_report(off.report)

@@ -347,6 +347,11 @@ def _nm(v: Any) -> str:
     return "—" if f is None else f"{f * 1e9:.1f}"
 
 
+def _fixed3(v: Any) -> str:
+    f = _num(v)
+    return "—" if f is None else f"{f:.3f}"
+
+
 def _pct(v: Any) -> str:
     f = _num(v)
     return "—" if f is None else f"{100.0 * f:.1f} %"
@@ -529,6 +534,27 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     if t is not None:
         lines.append(f"- **Time:** {t:.1f} s")
     return "\n".join(lines) + "\n" if lines else ""
+
+
+def _cross_judged_table(rounds: Any) -> str:
+    """The report's ``cross_judged`` as one table (round, effect, geometric shrink, p,
+    significant); empty without entries."""
+    rows = [
+        [
+            str(r.get("round")),
+            f"`{_md_escape(str(c.get('effect')))}`",
+            _pct(c.get("geometric_shrink")),
+            _fixed3(c.get("p_value")),
+            "yes" if c.get("significant") else "no",
+        ]
+        for r in (rounds if isinstance(rounds, list | tuple) else [])
+        if isinstance(r, Mapping)
+        for c in r.get("candidates") or []
+        if isinstance(c, Mapping)
+    ]
+    if not rows:
+        return ""
+    return _table(["round", "effect", "geometric shrink", "p", "significant"], rows)
 
 
 def _lag_family_lines(refits: Any) -> list[str]:
@@ -891,6 +917,15 @@ def markdown_report(
                 ],
             )
         )
+    judged = _cross_judged_table(report.get("cross_judged"))
+    if judged:
+        out.append("## Judged on every experiment\n")
+        out.append(
+            "Each round's refitted candidates, judged again on all experiments (training "
+            "ones too), each held out once and judged by refits without it; the round "
+            "selected the first significant one (see docs/diagnosis.md, *Cross-judging*).\n"
+        )
+        out.append(judged)
     nominal = report.get("nominal_parameters")
     if isinstance(nominal, Mapping) and nominal:
         with_effects = report.get("selected_model_parameters")
@@ -950,6 +985,7 @@ def markdown_report(
         "tie_break",
         "tie_signatures",
         "lag_family_refits",
+        "cross_judged",
         "crossfit",
         "evidence",
         "advice",
