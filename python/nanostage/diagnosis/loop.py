@@ -556,9 +556,22 @@ def diagnose_experiments(
         if rnd == 0:
             pool_names = [r.effect for r in results]
         signature_distances.append({})
+        best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
+        while best is not None and best.effect in held:
+            # A selected effect is fitted with the free parameters too: a winner known from
+            # its held screening only is refitted from all starts, and the round picks
+            # again.
+            now = (current, current_ms, current_cmd, current_units)
+            _refine(
+                [by_name[best.effect]], now, ctx, results, held, skipped, rnd, progress, executor
+            )
+            held.discard(best.effect)
+            results.sort(key=ranked)
+            best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         if st.cross_judge_folds > 1 and len(ctx.folds) == 1:
             # Judged again on every experiment: the round picks among its refitted
-            # candidates by these results, and selects that candidate's fit above.
+            # candidates (the winner above among them) by these results, and selects that
+            # candidate's fit above.
             pool = [(by_name[r.effect][1], r) for r in results if r.effect not in held]
             n_all = len(ctx.folds[0][0]) + len(ctx.folds[0][1])
             print_progress(
@@ -577,19 +590,6 @@ def diagnose_experiments(
                     f"shrink {pick.geometric_shrink:.1%}, p = {pick.p_value:.3f}",
                     progress,
                 )
-        else:
-            best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
-        while best is not None and best.effect in held:
-            # A selected effect is fitted with the free parameters too: a winner known from
-            # its held screening only is refitted from all starts, and the round picks
-            # again.
-            now = (current, current_ms, current_cmd, current_units)
-            _refine(
-                [by_name[best.effect]], now, ctx, results, held, skipped, rnd, progress, executor
-            )
-            held.discard(best.effect)
-            results.sort(key=ranked)
-            best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         if best is None:
             break
         selected.append(best.effect)
