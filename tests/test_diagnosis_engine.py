@@ -1765,6 +1765,9 @@ def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
     section = md.split("## Judged on every experiment")[1].split("\n## ")[0]
     rows = [line for line in section.splitlines() if line.startswith("| 1 | `")]
     assert [x.split("`")[1] for x in rows] == first
+    for bad in (2.5, True, "3"):
+        with pytest.raises(ValueError, match=r"cross_judge_folds = .*must be an integer"):
+            diagnose(m, None, settings=dc.replace(st, cross_judge_folds=bad), progress=False)
     off = diagnose(m, None, settings=dc.replace(st, cross_judge_folds=0), progress=False)
     assert off.report["cross_judged"] == []
     assert "## Judged on every experiment" not in markdown_report(off.report)

@@ -332,6 +332,11 @@ def diagnose_experiments(
             "(MB of simulations kept for reuse; 0 turns the reuse off)"
         )
     ranked = rank_key(st.ranking)  # checks the setting before any work
+    if isinstance(st.cross_judge_folds, bool) or not isinstance(st.cross_judge_folds, int):
+        raise ValueError(
+            f"DiagnosisSettings.cross_judge_folds = {st.cross_judge_folds!r}: must be an "
+            "integer (folds of the cross-judging, at least 2; 0 or 1 turns it off)"
+        )
     significance_mode(st.significance)
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
