@@ -910,10 +910,7 @@ def crossfit_models(
         params = [(n, dataclasses.replace(p, initial=warm[n])) for n, p in free]
         for cand, values in with_effects:
             if not cand.discrete:
-                params += [
-                    (f"{cand.name}.{q.name}", dataclasses.replace(q, initial=float(v)))
-                    for q, v in zip(cand.params, values, strict=True)
-                ]
+                params += _warm_params(cand, values)
 
         def build(values: Sequence[float]) -> System:
             s = set_free(nominal, {n: v for (n, _), v in zip(free, values[:nf], strict=True)})
@@ -952,10 +949,24 @@ def crossfit_models(
         )
         return before.system, after.system
 
-    threads = max(1, min(settings.parallel_candidates, len(jobs)))
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        pairs = list(pool.map(fit_pair, jobs) if threads > 1 else map(fit_pair, jobs))
+    pairs = _thread_map(fit_pair, jobs, settings.parallel_candidates)
     return [(judged, b, a) for (_, judged), (b, a) in zip(jobs, pairs, strict=True)]
+
+
+def _thread_map(f: Callable[[Any], Any], items: Sequence[Any], parallel: int) -> list[Any]:
+    """``[f(x) for x in items]``, on up to ``parallel`` threads (in this thread with one)."""
+    threads = max(1, min(parallel, len(items)))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        return list(pool.map(f, items) if threads > 1 else map(f, items))
+
+
+def _warm_params(cand: Candidate, values: Sequence[float]) -> list[tuple[str, Param]]:
+    """A continuous candidate's own parameters, named ``effect.parameter``, starting at
+    ``values`` (its fitted ones)."""
+    return [
+        (f"{cand.name}.{q.name}", dataclasses.replace(q, initial=float(v)))
+        for q, v in zip(cand.params, values, strict=True)
+    ]
 
 
 def cross_judge_split(n: int, k: int) -> list[list[int]]:
@@ -1003,13 +1014,7 @@ def _cross_judge(
             assert r.setting is not None
             apply = _at_setting(cand, r.setting)
         else:
-            params = [
-                (
-                    f"{cand.name}.{q.name}",
-                    dataclasses.replace(q, initial=r.fit.values[f"{cand.name}.{q.name}"]),
-                )
-                for q in cand.params
-            ]
+            params = _warm_params(cand, _effect_values(cand, r))
         fits, ms, _, cmd, units = c.fit_and_validate(
             current, params, apply, 1, st.seed + r.index, local=True
         )
@@ -1029,9 +1034,7 @@ def _cross_judge(
         )
         return dataclasses.replace(v, log_occam=r.log_occam, units=r.units)
 
-    threads = max(1, min(st.parallel_candidates, len(pool)))
-    with ThreadPoolExecutor(max_workers=threads) as ex:
-        out = list(ex.map(one, pool) if threads > 1 else map(one, pool))
+    out = _thread_map(one, pool, st.parallel_candidates)
     out.sort(key=rank_key(st.ranking))
     return out
 
