@@ -1771,3 +1771,29 @@ def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
     off = diagnose(m, None, settings=dc.replace(st, cross_judge_folds=0), progress=False)
     assert off.report["cross_judged"] == []
     assert "## Judged on every experiment" not in markdown_report(off.report)
+
+
+def test_the_round_selects_by_the_cross_judged_results(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the cross-judged results name another candidate than the validation
+    experiments would, the round selects that one (with its own fit)."""
+    import nanostage.diagnosis.loop as lp
+
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    real = lp._cross_judge
+    chosen: list[str] = []
+
+    def other_wins(*a: Any, **kw: Any) -> list[CandidateResult]:
+        out = real(*a, **kw)
+        if not chosen:
+            chosen.append(next(r.effect for r in out if r.effect != "asymmetric_friction"))
+        return [dc.replace(r, significant=r.effect == chosen[0]) for r in out]
+
+    monkeypatch.setattr(lp, "_cross_judge", other_wins)
+    st = dc.replace(FAST, cross_judge_folds=2, crossfit_folds=0, forward_rounds=1)
+    d = diagnose(m, None, settings=st, progress=False)
+    assert d.report["selected"] == chosen
+    first = next(c for c in d.report["candidates"] if c["effect"] == chosen[0])
+    assert d.report["gap_after"]["total_rms_m"] == pytest.approx(first["validation_rms_m"])
