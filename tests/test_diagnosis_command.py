@@ -211,6 +211,48 @@ def test_a_large_explained_gap_is_not_discarded_for_want_of_validation_moves() -
         assert r.geometric_shrink == pytest.approx(1.0 - 10.0 ** (-1.0 / 8.0), rel=1e-12)
 
 
+def test_a_friction_law_must_explain_most_of_the_gap() -> None:
+    """A friction-law candidate replaces the nominal law, and any law takes up part of the
+    nominal law's form error: it is significant only when it explains at least
+    ``friction_model_share`` of the validation gap's mean square (1 − (1 − geometric
+    shrink)²). An added effect with the same gaps keeps the complexity penalty alone."""
+    fit = cast(Any, SimpleNamespace(values={}, std_errors={}, train_rms_m=1e-7))
+    base = np.array([4.0, 9.0, 2.0, 6.0]) * 1e-14
+
+    def judge(name: str, factor: float, settings: DiagnosisSettings) -> CandidateResult:
+        after = base * factor
+        return _verdict(
+            name,
+            [fit],
+            after,
+            [None] * 4,
+            None,
+            3,
+            base,
+            [None] * 4,
+            _ns_ctx(1e-9, settings),
+            0,
+            after,
+            base,
+        )
+
+    st = DiagnosisSettings()
+    assert st.friction_model_share == 0.5
+    # Every experiment's mean square × 0.6 (40 % explained) or × 0.4 (60 % explained).
+    for factor in (0.6, 0.4):
+        law = judge("lugre", factor, st)
+        added = judge("offset_force", factor, st)
+        assert law.geometric_shrink == pytest.approx(1.0 - math.sqrt(factor), rel=1e-12)
+        assert law.p_value == 0.0 and added.p_value == 0.0
+        assert added.significant, added.reasons
+        assert law.significant == (1.0 - factor >= 0.5), law.reasons
+    partial = judge("gms", 0.6, st)
+    assert not partial.significant
+    assert any("explains 40% of the gap's mean square" in x for x in partial.reasons)
+    # Off: the friction law is judged as any other candidate.
+    assert judge("lugre", 0.6, dc.replace(st, friction_model_share=0.0)).significant
+
+
 def test_unexplained_gap_names_the_best_partial_explanations() -> None:
     st = DiagnosisSettings()
 

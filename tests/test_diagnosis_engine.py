@@ -1135,6 +1135,9 @@ def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
     assert cached["simulations"]["reused"] > 0 and cached["simulations"]["simulated"] > 0
     with pytest.raises(ValueError, match=r"simulation_cache_mb = -1.0: must be ≥ 0"):
         diagnose(m, None, settings=dc.replace(st, simulation_cache_mb=-1.0), progress=False)
+    for share in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match=r"friction_model_share = .*must be in \[0, 1\]"):
+            diagnose(m, None, settings=dc.replace(st, friction_model_share=share), progress=False)
 
 
 def test_simulation_cache_looks_up_repeats_and_drops_the_least_recently_used() -> None:

@@ -337,6 +337,12 @@ def diagnose_experiments(
             f"DiagnosisSettings.cross_judge_folds = {st.cross_judge_folds!r}: must be an "
             "integer (folds of the cross-judging, at least 2; 0 or 1 turns it off)"
         )
+    if not 0.0 <= st.friction_model_share <= 1.0:
+        raise ValueError(
+            f"DiagnosisSettings.friction_model_share = {st.friction_model_share!r}: must be "
+            "in [0, 1] (share of the validation gap's mean square a friction law must explain; "
+            "0 turns the rule off)"
+        )
     significance_mode(st.significance)
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
@@ -1276,6 +1282,15 @@ def _verdict(
             + (f"; floor-weighted {wrms0 * 1e9:.0f} → {wrms1 * 1e9:.0f} nm" if weighted else "")
             + ")"
         )
+    if name in FRICTION_MODELS and st.friction_model_share > 0.0:
+        share = 1.0 - (1.0 - judged) ** 2 if judged < 1.0 else 1.0
+        if share < st.friction_model_share:
+            ok = False
+            reasons.append(
+                f"a friction law explains {share:.0%} of the gap's mean square, under "
+                f"{st.friction_model_share:.0%}: a partial fit of the nominal law's form "
+                "error, which every other law also leaves"
+            )
     if wrms0 <= st.explainable_factor * ctx.floor:
         ok = False
         reasons.append(

@@ -72,6 +72,18 @@ class DiagnosisSettings:
     #: candidate removes at least :attr:`large_shrink` of it (RMS). 0 turns the rule off.
     large_gap_factor: float = 10.0
     large_shrink: float = 0.6
+    #: A friction-law candidate (:data:`~.loop.FRICTION_MODELS`: `coulomb_viscous`,
+    #: `stribeck`, `dahl`, `lugre`, `gms`) replaces the nominal friction law, and every law
+    #: is an approximation: another law fitted to a model's friction always takes up part
+    #: of the law's form error, whatever else is missing ("friction laws trade off against
+    #: each other"). So a friction-law candidate is significant only when it explains at
+    #: least this share of the validation gap's mean square (from the judged shrink s:
+    #: 1 − (1 − s)², the geometric shrink under the relative significance; 0.5 means
+    #: s ≥ 29.3 %): most of the gap, not a partial fit of the form error. With less, the
+    #: report names it among the best partial explanations of an unexplained gap. An added
+    #: effect (an offset, a compliance) has no such standing fit to take up and keeps the
+    #: complexity penalty alone. 0 turns the rule off.
+    friction_model_share: float = 0.5
     #: Use the measured command (``command_v``) as a second channel of the gap when every
     #: experiment has one: fits, noise floors and significance then weigh the command gap
     #: against the position gap by each channel's noise floor (:func:`~.loop.command_weight`).
