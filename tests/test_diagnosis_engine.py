@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import json
+import math
 import os
 import subprocess
 import sys
@@ -53,6 +54,7 @@ from nanostage.diagnosis.loop import (
     cross_judge_split,
     crossfit_folds,
     crossfit_models,
+    hopeless_lag_refits,
     refine_names,
 )
 from nanostage.diagnosis.manifest import load_manifest
@@ -67,7 +69,7 @@ from nanostage.diagnosis.objective import (
     noise_floor_m,
     simulate_readings_and_commands,
 )
-from nanostage.diagnosis.report import markdown_report
+from nanostage.diagnosis.report import _lag_family_lines, markdown_report
 from nanostage.diagnosis.run import (
     best_single,
     bound_warnings,
@@ -317,7 +319,7 @@ def test_refine_the_best_friction_model_outside_the_best_four() -> None:
     off)."""
 
     def ranked(*names: str) -> list[CandidateResult]:
-        return [cast(CandidateResult, SimpleNamespace(effect=n)) for n in names]
+        return [cast(CandidateResult, SimpleNamespace(effect=n, shrink=0.0)) for n in names]
 
     st = DiagnosisSettings()
     order = ranked(
@@ -342,7 +344,7 @@ def test_a_calibration_at_its_bounds_refines_the_whole_lag_family() -> None:
     turned off, the refits are the usual ones."""
 
     def ranked(*names: str) -> list[CandidateResult]:
-        return [cast(CandidateResult, SimpleNamespace(effect=n)) for n in names]
+        return [cast(CandidateResult, SimpleNamespace(effect=n, shrink=0.0)) for n in names]
 
     order = ranked(
         "offset_force",
@@ -374,6 +376,55 @@ def test_a_calibration_at_its_bounds_refines_the_whole_lag_family() -> None:
         order, st, lag_family=True
     )
     assert set(LAG_FAMILY) <= set(CANDIDATES)
+
+
+def test_the_lag_family_leaves_out_members_that_multiply_the_gap() -> None:
+    """The lag family's extra refits leave out a member whose screened pooled validation
+    gap is more than ``lag_refit_max_gap_ratio`` times the model before's (pooled shrink
+    below 1 − ratio); the usual refits are never left out; ``inf`` refits every one; the
+    report says which were left out."""
+
+    def res(name: str, shrink: float) -> CandidateResult:
+        return cast(CandidateResult, SimpleNamespace(effect=name, shrink=shrink))
+
+    st = DiagnosisSettings(refine_top=2)
+    order = [
+        res("offset_force", 0.3),
+        res("sensor_delay", -25.0),  # a usual refit: kept however bad
+        res("amplifier_dynamics", -0.4),
+        res("backlash", -8.9),  # 9.9× the gap before: within 10×
+        res("computation_delay", -9.1),  # 10.1×: left out
+        res("lugre", -30.0),  # no lag-family member
+    ]
+    assert hopeless_lag_refits(order, st) == ["computation_delay"]
+    assert refine_names(order, st, missed_marks=True) == [
+        "offset_force",
+        "sensor_delay",
+        "lugre",
+        "amplifier_dynamics",
+        "backlash",
+    ]
+    every = dc.replace(st, lag_refit_max_gap_ratio=math.inf)
+    assert hopeless_lag_refits(order, every) == []
+    assert "computation_delay" in refine_names(order, every, lag_family=True)
+    # Without a trigger the lag family is not refitted at all.
+    assert refine_names(order, st) == ["offset_force", "sensor_delay", "lugre"]
+    lines = _lag_family_lines(
+        [
+            {
+                "round": 1,
+                "at_bounds": [],
+                "missed_marks": ["ramp_level_v"],
+                "refined": ["backlash"],
+                "not_refined": ["computation_delay"],
+            }
+        ]
+    )
+    assert lines == [
+        "Round 1: the model before misses the marks `ramp_level_v` (see *Signatures*), so the "
+        "lag family was refitted with the free parameters too: `backlash` (not "
+        "`computation_delay`: screened far worse than the model before).\n"
+    ]
 
 
 def test_benchmark_design_reference() -> None:
@@ -1089,8 +1140,16 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
         return simulated(self, system)
 
     monkeypatch.setattr(loop_mod.SignatureJudge, "simulated", recording)
-    # No usual refits: the lag family's are the only ones.
-    st = dc.replace(FAST, forward_rounds=1, refine_top=0, crossfit_folds=0)
+    # No usual refits: the lag family's are the only ones. A one-sample delay added to
+    # this loop multiplies the gap more than tenfold: every member is refitted here
+    # (``inf``), and left out with the default ratio (below).
+    st = dc.replace(
+        FAST,
+        forward_rounds=1,
+        refine_top=0,
+        crossfit_folds=0,
+        lag_refit_max_gap_ratio=math.inf,
+    )
     d = diagnose(m, tmp_path / "out", settings=st, progress=True, figures=False)
     err = capsys.readouterr().err
     assert d.report["lag_family_refits"] == [
@@ -1099,6 +1158,7 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
             "at_bounds": [],
             "missed_marks": ["ramp_level_v"],
             "refined": ["computation_delay"],
+            "not_refined": [],
         }
     ]
     md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
@@ -1111,6 +1171,15 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
     assert get_path(judged[0], "plant.dahl.coulomb_force_n") == fitted
     assert "refining the lag family too (computation_delay)" in err
     assert "refit computation_delay" in err and "refit offset_force" not in err
+    # The default ratio: the delay screened at more than ten times the gap before.
+    d10 = diagnose(m, None, settings=dc.replace(st, lag_refit_max_gap_ratio=10.0), progress=True)
+    err = capsys.readouterr().err
+    delay = next(r for r in d10.report["candidates"] if r["effect"] == "computation_delay")
+    assert delay["shrink"] < -9.0
+    assert d10.report["lag_family_refits"][0]["refined"] == []
+    assert d10.report["lag_family_refits"][0]["not_refined"] == ["computation_delay"]
+    assert "not computation_delay: screened at more than 10× the gap before" in err
+    assert "refit computation_delay" not in err
     off = dc.replace(st, refine_lag_family_on_missed_marks=False)
     d_off = diagnose(m, None, settings=off, progress=True)
     assert "marks missed" not in capsys.readouterr().err
@@ -1135,6 +1204,10 @@ def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
     assert cached["simulations"]["reused"] > 0 and cached["simulations"]["simulated"] > 0
     with pytest.raises(ValueError, match=r"simulation_cache_mb = -1.0: must be ≥ 0"):
         diagnose(m, None, settings=dc.replace(st, simulation_cache_mb=-1.0), progress=False)
+    for ratio in (0.5, float("nan")):
+        with pytest.raises(ValueError, match=r"lag_refit_max_gap_ratio = .*must be ≥ 1"):
+            bad = dc.replace(st, lag_refit_max_gap_ratio=ratio)
+            diagnose(m, None, settings=bad, progress=False)
     for share in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match=r"friction_model_share = .*must be in \[0, 1\]"):
             diagnose(m, None, settings=dc.replace(st, friction_model_share=share), progress=False)

@@ -343,6 +343,12 @@ def diagnose_experiments(
             "in [0, 1] (share of the validation gap's mean square a friction law must explain; "
             "0 turns the rule off)"
         )
+    if not st.lag_refit_max_gap_ratio >= 1.0:
+        raise ValueError(
+            f"DiagnosisSettings.lag_refit_max_gap_ratio = {st.lag_refit_max_gap_ratio!r}: "
+            "must be ≥ 1 (screened gap over the model before's beyond which a lag-family "
+            "candidate is not refitted; inf refits every one)"
+        )
     significance_mode(st.significance)
     if not folds or any(len(v) == 0 for _, v in folds):
         raise ValueError("the diagnosis needs at least one validation experiment per fold")
@@ -503,15 +509,33 @@ def diagnose_experiments(
         usual = refine_names(results, st)
         names_top = refine_names(results, st, lag_family=bool(bent), missed_marks=bool(missed))
         more = names_top[len(usual) :]
-        if more:
+        triggered = (bool(bent) and st.refine_lag_family_at_bounds) or (
+            bool(missed) and st.refine_lag_family_on_missed_marks
+        )
+        hopeless = (
+            [n for n in hopeless_lag_refits(results, st) if n not in usual] if triggered else []
+        )
+        if more or hopeless:
             lag_refits.append(
-                {"round": rnd + 1, "at_bounds": bent, "missed_marks": missed, "refined": more}
+                {
+                    "round": rnd + 1,
+                    "at_bounds": bent,
+                    "missed_marks": missed,
+                    "refined": more,
+                    "not_refined": hopeless,
+                }
             )
             why = [f"{', '.join(bent)} at a bound"] if bent else []
             why += [f"marks missed ({', '.join(missed)})"] if missed else []
             print_progress(
                 f"  round {rnd + 1}: the model before has {' and '.join(why)}: "
-                f"refining the lag family too ({', '.join(more)})",
+                f"refining the lag family too ({', '.join(more) or 'none'})"
+                + (
+                    f"; not {', '.join(hopeless)}: screened at more than "
+                    f"{st.lag_refit_max_gap_ratio:g}× the gap before"
+                    if hopeless
+                    else ""
+                ),
                 progress,
             )
         top = [by_name[name] for name in names_top]
@@ -718,7 +742,9 @@ def refine_names(
     parameter at its bound) and :attr:`DiagnosisSettings.refine_lag_family_at_bounds`, or
     with ``missed_marks`` (the model before misses a mark of the traces) and
     :attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`, then every other member
-    of :data:`LAG_FAMILY` among them, in screening order."""
+    of :data:`LAG_FAMILY` among them, in screening order, but for those whose screened
+    validation gap is more than :attr:`DiagnosisSettings.lag_refit_max_gap_ratio` times
+    the model before's (:func:`hopeless_lag_refits`)."""
     names = [r.effect for r in results[: st.refine_top]]
     if st.refine_best_friction_model:
         rest = (r.effect for r in results[st.refine_top :] if r.effect in FRICTION_MODELS)
@@ -728,8 +754,29 @@ def refine_names(
     if (lag_family and st.refine_lag_family_at_bounds) or (
         missed_marks and st.refine_lag_family_on_missed_marks
     ):
-        names += [r.effect for r in results if r.effect in LAG_FAMILY and r.effect not in names]
+        skip = set(hopeless_lag_refits(results, st))
+        names += [
+            r.effect
+            for r in results
+            if r.effect in LAG_FAMILY and r.effect not in names and r.effect not in skip
+        ]
     return names
+
+
+def hopeless_lag_refits(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
+    """The lag-family candidates outside the usual refits whose screened pooled validation
+    gap is more than :attr:`DiagnosisSettings.lag_refit_max_gap_ratio` times the model
+    before's (pooled shrink below ``1 − ratio``), in screening order: the lag family's extra
+    refits undo a calibration bent a few tens of per cent to stand in for a lag, not a
+    candidate that multiplies the gap (a one-sample delay added to a loop without one)."""
+    usual = {r.effect for r in results[: st.refine_top]}
+    return [
+        r.effect
+        for r in results
+        if r.effect in LAG_FAMILY
+        and r.effect not in usual
+        and r.shrink < 1.0 - st.lag_refit_max_gap_ratio
+    ]
 
 
 def _refine(

@@ -569,10 +569,13 @@ def _lag_family_lines(refits: Any) -> list[str]:
         if d.get("missed_marks"):
             marks = ", ".join(f"`{_md_escape(str(m))}`" for m in d["missed_marks"])
             why.append(f"misses the marks {marks} (see *Signatures*)")
-        names = ", ".join(f"`{_md_escape(str(n))}`" for n in d.get("refined") or [])
+        names = ", ".join(f"`{_md_escape(str(n))}`" for n in d.get("refined") or []) or "none"
+        skipped = ", ".join(f"`{_md_escape(str(n))}`" for n in d.get("not_refined") or [])
         out.append(
             f"Round {d.get('round')}: the model before {' and '.join(why)}, so the lag family "
-            f"was refitted with the free parameters too: {names}.\n"
+            f"was refitted with the free parameters too: {names}"
+            + (f" (not {skipped}: screened far worse than the model before)" if skipped else "")
+            + ".\n"
         )
     return out
 

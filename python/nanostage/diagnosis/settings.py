@@ -153,6 +153,15 @@ class DiagnosisSettings:
     #: costs up to five more full refits there; on the own family (no command) it acts
     #: where a limit cycle is missed (backlash and delay cases).
     refine_lag_family_on_missed_marks: bool = True
+    #: The lag family's extra refits (at bounds, on missed marks) leave out a member whose
+    #: screened pooled validation gap is more than this many times the model before's
+    #: (:func:`~nanostage.diagnosis.loop.hopeless_lag_refits`; ``math.inf`` refits every
+    #: one). Those refits undo a calibration bent to stand in for a lag, which costs a lag
+    #: candidate tens of per cent in screening, not a factor of ten: on a consumed
+    #: independent no-effect case both delays screened at 21–23 times the gap (a
+    #: one-sample delay in a loop without one), refitted at 37–41 times, and cost 40 s each
+    #: of a 407 s diagnosis.
+    lag_refit_max_gap_ratio: float = 10.0
     #: Break a tie by the Occam factor (:func:`log_occam_factor`): among the significant
     #: candidates the validation data cannot tell from the best (:func:`indistinguishable`),
     #: select the one whose own parameters the data pin down most within their bounds (the
