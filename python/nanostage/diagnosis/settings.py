@@ -160,7 +160,7 @@ class DiagnosisSettings:
     #: candidate tens of per cent in screening, not a factor of ten: on a consumed
     #: independent no-effect case both delays screened at 21–23 times the gap (a
     #: one-sample delay in a loop without one), refitted at 37–42 times, and cost 40 s each
-    #: of a 407 s diagnosis.
+    #: of a 407 s diagnosis (under load).
     lag_refit_max_gap_ratio: float = 10.0
     #: Break a tie by the Occam factor (:func:`log_occam_factor`): among the significant
     #: candidates the validation data cannot tell from the best (:func:`indistinguishable`),
