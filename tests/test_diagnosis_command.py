@@ -167,28 +167,41 @@ def _ns_ctx(floor: float, st: DiagnosisSettings) -> Any:
     )
 
 
-def test_a_large_explained_gap_is_not_discarded_for_want_of_validation_moves() -> None:
+def _judge_four(
+    name: str,
+    k_params: int,
+    base: np.ndarray,
+    after: np.ndarray,
+    floor: float,
+    settings: DiagnosisSettings,
+) -> CandidateResult:
+    """``_verdict`` of a candidate on four validation experiments (mean squares ``after``
+    against ``base``, each experiment its own unit), without a command."""
     fit = cast(Any, SimpleNamespace(values={}, std_errors={}, train_rms_m=1e-7))
+    return _verdict(
+        name,
+        [fit],
+        after,
+        [None] * 4,
+        None,
+        k_params,
+        base,
+        [None] * 4,
+        _ns_ctx(floor, settings),
+        0,
+        after,
+        base,
+    )
+
+
+def test_a_large_explained_gap_is_not_discarded_for_want_of_validation_moves() -> None:
     base = np.array([100.0, 1.0, 1.0, 1.0]) * 1e-14
     after = np.array([10.0, 1.0, 1.0, 1.0]) * 1e-14
     # The pooled rules' bootstrap over validation moves (units); the relative one below.
     st = DiagnosisSettings(significance="pooled")
 
     def judge(floor: float, settings: DiagnosisSettings) -> CandidateResult:
-        return _verdict(
-            "backlash",
-            [fit],
-            after,
-            [None] * 4,
-            None,
-            2,
-            base,
-            [None] * 4,
-            _ns_ctx(floor, settings),
-            0,
-            after,
-            base,
-        )
+        return _judge_four("backlash", 2, base, after, floor, settings)
 
     # All the gain is in one of four validation experiments: the bootstrap cannot show it
     # consistent (p = (3/4)^4 ≈ 0.32), but the gap is 50× the floor and 64 % of it goes.
@@ -216,25 +229,10 @@ def test_a_friction_law_must_explain_most_of_the_gap() -> None:
     nominal law's form error: it is significant only when it explains at least
     ``friction_model_share`` of the validation gap's mean square (1 − (1 − geometric
     shrink)²). An added effect with the same gaps keeps the complexity penalty alone."""
-    fit = cast(Any, SimpleNamespace(values={}, std_errors={}, train_rms_m=1e-7))
     base = np.array([4.0, 9.0, 2.0, 6.0]) * 1e-14
 
     def judge(name: str, factor: float, settings: DiagnosisSettings) -> CandidateResult:
-        after = base * factor
-        return _verdict(
-            name,
-            [fit],
-            after,
-            [None] * 4,
-            None,
-            3,
-            base,
-            [None] * 4,
-            _ns_ctx(1e-9, settings),
-            0,
-            after,
-            base,
-        )
+        return _judge_four(name, 3, base, base * factor, 1e-9, settings)
 
     st = DiagnosisSettings()
     assert st.friction_model_share == 0.5

@@ -509,11 +509,10 @@ def diagnose_experiments(
         usual = refine_names(results, st)
         names_top = refine_names(results, st, lag_family=bool(bent), missed_marks=bool(missed))
         more = names_top[len(usual) :]
-        triggered = (bool(bent) and st.refine_lag_family_at_bounds) or (
-            bool(missed) and st.refine_lag_family_on_missed_marks
-        )
         hopeless = (
-            [n for n in hopeless_lag_refits(results, st) if n not in usual] if triggered else []
+            [n for n in hopeless_lag_refits(results, st) if n not in usual]
+            if lag_refits_due(st, bool(bent), bool(missed))
+            else []
         )
         if more or hopeless:
             lag_refits.append(
@@ -751,9 +750,7 @@ def refine_names(
         best = next(rest, None)
         if best is not None:
             names.append(best)
-    if (lag_family and st.refine_lag_family_at_bounds) or (
-        missed_marks and st.refine_lag_family_on_missed_marks
-    ):
+    if lag_refits_due(st, lag_family, missed_marks):
         skip = set(hopeless_lag_refits(results, st))
         names += [
             r.effect
@@ -761,6 +758,15 @@ def refine_names(
             if r.effect in LAG_FAMILY and r.effect not in names and r.effect not in skip
         ]
     return names
+
+
+def lag_refits_due(st: DiagnosisSettings, at_bounds: bool, missed_marks: bool) -> bool:
+    """Whether a round refits the lag family beyond the usual refits: the model before has
+    a free parameter at its bound (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`)
+    or misses a mark (:attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`)."""
+    return (at_bounds and st.refine_lag_family_at_bounds) or (
+        missed_marks and st.refine_lag_family_on_missed_marks
+    )
 
 
 def hopeless_lag_refits(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
