@@ -41,10 +41,21 @@ Side = Literal["motor", "table"]
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DwellStaticFriction:
-    """Rising static friction with dwell time: ``Fs(t_d) = Fs + ΔFs · t_d / (t_d + γ)``."""
+    """Rising static friction with dwell time: ``Fs(θ) = Fs + ΔFs · θ / (θ + γ)``.
+
+    Two laws of the dwell clock ``θ`` (docs/effects.md, *Dwell-time static friction*):
+
+    - breakaway only (``slip_distance_m = None``, the default): ``θ`` is the time the side
+      has been stuck, and only the breakaway force rises;
+    - contact ageing (``slip_distance_m = D_c``, in [1e-9, 1e-2] m): ``θ`` is the contact age
+      of Ruina's ageing law, ``dθ/dt = 1 − |v| · θ / D_c`` (the dwell time at rest, relaxing
+      to ``D_c / |v|`` over a slip of about ``D_c``), and ``Fs(θ)`` is also the static level of
+      the Stribeck term while sliding, so a slow creep keeps the level raised.
+    """
 
     rise_n: float
     time_constant_s: float
+    slip_distance_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

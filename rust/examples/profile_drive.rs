@@ -22,6 +22,7 @@ fn cases(step_m: f64) -> Vec<(&'static str, ExtendedConfig)> {
         m.dwell = Some(DwellStatic {
             rise_n: 0.3 * fs_motor,
             time_constant_s: 0.1,
+            slip_distance_m: None,
         });
     }
     let mut memory = general;

@@ -7,7 +7,7 @@
 //! plant's scales ([`Drive::new`]), and a stuck phase of one mass without amplifier state is
 //! solved in closed form, as in the rigid plant: with every effect off the component plant
 //! takes the rigid plant's steps.
-use super::component_params::{Actuator, DriveParams, Modulation, TableFriction};
+use super::component_params::{Actuator, DriveParams, Modulation, StaticMap, TableFriction};
 use super::friction::{
     direction_factor, modulation, sliding_direction, smoothstep, GMS_ELASTIC_FRACTION,
 };
@@ -424,7 +424,8 @@ impl Drive {
             let w = self.i_lag_motor.map_or(v0, |k| y[k]);
             let dwell = self.i_clock[0].map_or(0.0, |k| y[k]);
             if d0 != 0.0 {
-                out[0][1] += m.sliding_force_with(v0, w, d0, s0, self.negligible[0]);
+                let rise = m.sliding_rise(dwell);
+                out[0][1] += m.sliding_force_with(v0, w, d0, s0, rise, self.negligible[0]);
             }
             out[0][2] += m.capacity(1.0, s0, dwell);
             out[0][3] += m.capacity(-1.0, s0, dwell);
@@ -433,12 +434,34 @@ impl Drive {
             let w = self.i_lag_table.map_or(vt, |k| y[k]);
             let dwell = self.i_clock[t].map_or(0.0, |k| y[k]);
             if dt != 0.0 {
-                out[t][1] += m.sliding_force_with(vt, w, dt, st, self.negligible[1]);
+                let rise = m.sliding_rise(dwell);
+                out[t][1] += m.sliding_force_with(vt, w, dt, st, rise, self.negligible[1]);
             }
             out[t][2] += m.capacity(1.0, st, dwell);
             out[t][3] += m.capacity(-1.0, st, dwell);
         }
         out
+    }
+
+    /// The static map whose dwell clock belongs to mass `j` (the motor's on mass 0, the
+    /// table's on the table; the table's on mass 0 when it is the only mass).
+    fn clock_map(&self, j: usize) -> Option<&StaticMap> {
+        let table = match &self.params.table_friction {
+            TableFriction::Static(m) if m.dwell.is_some() => Some(m),
+            _ => None,
+        };
+        let motor = self
+            .params
+            .motor_friction
+            .as_ref()
+            .filter(|m| m.dwell.is_some());
+        if j == 0 {
+            motor.or(if self.table() == 0 { table } else { None })
+        } else if j == self.table() {
+            table
+        } else {
+            None
+        }
     }
 
     /// Right-hand side for the given modes.
@@ -467,9 +490,13 @@ impl Drive {
             head[k] = (2.0 * std::f64::consts::PI * a.bandwidth_hz * (inp.u_v - y[k]))
                 .clamp(-a.slew_v_per_s, a.slew_v_per_s);
         }
-        for (clock, mode) in self.i_clock.iter().zip(modes).take(self.n_mass) {
-            if let Some(k) = *clock {
-                head[k] = if *mode == MassMode::Stuck { 1.0 } else { 0.0 };
+        for (j, (clock, mode)) in self.i_clock.iter().zip(modes).enumerate().take(self.n_mass) {
+            if let (Some(k), Some(m)) = (*clock, self.clock_map(j)) {
+                head[k] = if *mode == MassMode::Stuck {
+                    1.0
+                } else {
+                    m.clock_rate(y[2 * j + 1], y[k]).0
+                };
             }
         }
         if let (Some(k), Some(m)) = (self.i_lag_motor, &self.params.motor_friction) {
@@ -656,8 +683,12 @@ impl Drive {
                 let (mod0, dmod0) = modulation(&p.motor_modulation, y[0]);
                 let s0 = inp.friction_scale * mod0;
                 let w = self.i_lag_motor.map_or(v0, |k| y[k]);
-                let (dv, dw, ds) = m.sliding_partials(w, d0, s0);
+                let age = self.i_clock[0].map_or(0.0, |k| y[k]);
+                let (dv, dw, ds, drise) = m.sliding_partials(w, d0, s0, m.sliding_rise(age));
                 grad[0][1] -= dv;
+                if let Some(k) = self.i_clock[0] {
+                    grad[0][k] -= drise * m.sliding_rise_slope(age);
+                }
                 match self.i_lag_motor {
                     Some(k) => grad[0][k] -= dw,
                     None => grad[0][1] -= dw,
@@ -670,8 +701,12 @@ impl Drive {
         if let TableFriction::Static(m) = &p.table_friction {
             if dt != 0.0 {
                 let w = self.i_lag_table.map_or(vt, |k| y[k]);
-                let (dv, dw, ds) = m.sliding_partials(w, dt, st);
+                let age = self.i_clock[t].map_or(0.0, |k| y[k]);
+                let (dv, dw, ds, drise) = m.sliding_partials(w, dt, st, m.sliding_rise(age));
                 grad[t][2 * t + 1] -= dv;
+                if let Some(k) = self.i_clock[t] {
+                    grad[t][k] -= drise * m.sliding_rise_slope(age);
+                }
                 match self.i_lag_table {
                     Some(k) => grad[t][k] -= dw,
                     None => grad[t][2 * t + 1] -= dw,
@@ -707,6 +742,15 @@ impl Drive {
             let w = 2.0 * std::f64::consts::PI * a.bandwidth_hz;
             if (w * (inp.u_v - y[k])).abs() < a.slew_v_per_s {
                 set(k, k, -w);
+            }
+        }
+        for j in 0..self.n_mass {
+            if let (Some(k), Some(m)) = (self.i_clock[j], self.clock_map(j)) {
+                if modes[j] != MassMode::Stuck && m.clock_rate(0.0, 0.0) != (0.0, 0.0, 0.0) {
+                    let (_, d_age, d_v) = m.clock_rate(y[2 * j + 1], y[k]);
+                    set(k, k, d_age);
+                    set(k, 2 * j + 1, d_v);
+                }
             }
         }
         if let (Some(k), Some(m)) = (self.i_lag_motor, &p.motor_friction) {
@@ -1166,8 +1210,11 @@ where
                     .drive
                     .holding(&self.y.as_slice()[..n], inp, &self.modes, j);
                 self.modes[j] = if f.abs() <= cap || force_stuck {
-                    if let Some(k) = self.drive.i_clock[j] {
-                        self.y[k] = 0.0;
+                    // The breakaway-only clock restarts; the contact age runs on.
+                    if let (Some(k), Some(m)) = (self.drive.i_clock[j], self.drive.clock_map(j)) {
+                        if m.clock_rate(0.0, 0.0) == (0.0, 0.0, 0.0) {
+                            self.y[k] = 0.0;
+                        }
                     }
                     MassMode::Stuck
                 } else if f.signum() == d {
@@ -1297,6 +1344,7 @@ mod tests {
             dwell: Some(DwellStatic {
                 rise_n: 5.0,
                 time_constant_s: 0.1,
+                slip_distance_m: None,
             }),
             memory_lag_s: Some(3e-3),
         };
@@ -1343,6 +1391,23 @@ mod tests {
             m.asymmetry = 0.1;
         }
         c.motor_modulation = modulation;
+        out.push(c);
+        // The contact-ageing law on the motor map, and on the table map behind a link.
+        let ageing = DwellStatic {
+            slip_distance_m: Some(2e-6),
+            ..map.dwell.expect("the test map has a dwell law")
+        };
+        if let Some(m) = c.motor_friction.as_mut() {
+            m.dwell = Some(ageing);
+        }
+        out.push(c);
+        let mut c = base;
+        c.table_friction = TableFriction::Static(StaticMap {
+            dwell: Some(ageing),
+            ..map
+        });
+        c.n_links = 1;
+        c.links[0] = link;
         out.push(c);
         for tf in [
             TableFriction::Static(map),

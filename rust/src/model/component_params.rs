@@ -21,15 +21,24 @@ pub enum Side {
     Table,
 }
 
-/// Rising static friction with dwell time: `Fs(t_d) = Fs + ΔFs·t_d/(t_d + γ)` where `t_d` is
-/// the time the side has been stuck (Armstrong's form, written so that `ΔFs = 0` is the
-/// nominal map).
+/// Rising static friction with dwell time: `Fs(θ) = Fs + ΔFs·θ/(θ + γ)` (Armstrong's form,
+/// written so that `ΔFs = 0` is the nominal map). Two laws of the dwell clock θ:
+///
+/// - breakaway only (`slip_distance_m = None`): θ is the time the side has been stuck (reset
+///   when it sticks, frozen while it slides) and raises only the breakaway capacity;
+/// - contact ageing (`slip_distance_m = Some(D_c)`): θ is the contact age of Ruina's ageing
+///   law, `θ̇ = 1 − |v|·θ/D_c` (the dwell time at rest, relaxing to `D_c/|v|` over a slip of
+///   about `D_c`, never reset), and `Fs(θ)` is also the static level of the Stribeck term
+///   while sliding: a slow creep keeps the level raised, a fast slide forgets it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DwellStatic {
     /// Rise of the static force for an infinite dwell ΔFs, N, in [0, 1e4].
     pub rise_n: f64,
     /// Dwell time constant γ, s, in (0, 1e3].
     pub time_constant_s: f64,
+    /// Characteristic slip distance `D_c` of the contact-ageing law, m, in [1e-9, 1e-2]
+    /// (`None`: breakaway only).
+    pub slip_distance_m: Option<f64>,
 }
 
 /// A static friction map with true stiction, at the table in force units:
@@ -255,7 +264,11 @@ pub struct DriveParams {
 impl DwellStatic {
     fn validate(&self) -> Result<(), ConfigError> {
         check_range("rise_n", self.rise_n, 0.0, 1e4)?;
-        check_positive("time_constant_s", self.time_constant_s, 1e3)
+        check_positive("time_constant_s", self.time_constant_s, 1e3)?;
+        if let Some(dc) = self.slip_distance_m {
+            check_range("slip_distance_m", dc, 1e-9, 1e-2)?;
+        }
+        Ok(())
     }
 }
 

@@ -129,14 +129,60 @@ impl StaticMap {
     /// scale `s` (modulation × stochastic factor).
     #[inline]
     pub fn sliding_force(&self, v: f64, w: f64, d: f64, s: f64) -> f64 {
-        self.sliding_force_with(v, w, d, s, f64::INFINITY)
+        self.sliding_force_with(v, w, d, s, 0.0, f64::INFINITY)
+    }
+
+    /// The contact-ageing law's rise of the static level at age `age_s`,
+    /// `ΔFs·θ/(θ + γ)` (0 without the dwell law or with its breakaway-only form, where the
+    /// rise enters the capacity alone).
+    #[inline]
+    pub fn sliding_rise(&self, age_s: f64) -> f64 {
+        match &self.dwell {
+            Some(dw) if dw.slip_distance_m.is_some() => {
+                dw.rise_n * age_s / (age_s + dw.time_constant_s)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// `∂/∂θ` of [`Self::sliding_rise`].
+    #[inline]
+    pub(crate) fn sliding_rise_slope(&self, age_s: f64) -> f64 {
+        match &self.dwell {
+            Some(dw) if dw.slip_distance_m.is_some() => {
+                let g = dw.time_constant_s;
+                dw.rise_n * g / ((age_s + g) * (age_s + g))
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// Rate of the dwell clock (the contact age θ) while the side moves at `v`: 0 for the
+    /// breakaway-only law (the clock runs only while stuck), `1 − |v|·θ/D_c` for the
+    /// contact-ageing law (Ruina's ageing law: θ grows at rest and relaxes to `D_c/|v|` over
+    /// a slip of about `D_c`), and its partials (∂/∂θ, ∂/∂v).
+    #[inline]
+    pub(crate) fn clock_rate(&self, v: f64, age_s: f64) -> (f64, f64, f64) {
+        match self.dwell.as_ref().and_then(|dw| dw.slip_distance_m) {
+            Some(dc) => (
+                1.0 - v.abs() * age_s / dc,
+                -v.abs() / dc,
+                -v.signum() * age_s / dc,
+            ),
+            None => (0.0, 0.0, 0.0),
+        }
     }
 
     /// Stribeck exponent above which the exponential term cannot change the sliding force
     /// (`e·(Fs − Fc)` below half an ulp of `Fc`; as `StribeckFriction::negligible_exponent`).
     /// `+∞` (never skip) when `Fc = 0`.
     pub fn negligible_exponent(&self) -> f64 {
-        let span = self.static_force_n - self.coulomb_force_n;
+        // The contact-ageing law raises the level by at most ΔFs.
+        let most_rise = match &self.dwell {
+            Some(dw) if dw.slip_distance_m.is_some() => dw.rise_n,
+            _ => 0.0,
+        };
+        let span = self.static_force_n + most_rise - self.coulomb_force_n;
         if self.coulomb_force_n > 0.0 && span > 0.0 {
             (span / self.coulomb_force_n).ln() + 55.0 * std::f64::consts::LN_2 + 1.0
         } else {
@@ -144,13 +190,24 @@ impl StaticMap {
         }
     }
 
-    /// [`Self::sliding_force`] without the exponential where its exponent exceeds
-    /// `negligible` (from [`Self::negligible_exponent`]) or 746 (where it underflows to 0):
-    /// the same force, bit for bit. The exponent `|w/vs|^δ` is a product for δ = 2.
+    /// [`Self::sliding_force`] with the static level raised by `rise_n` (the contact-ageing
+    /// law's [`Self::sliding_rise`]; 0 otherwise), without the exponential where its
+    /// exponent exceeds `negligible` (from [`Self::negligible_exponent`]) or 746 (where it
+    /// underflows to 0): the same force, bit for bit. The exponent `|w/vs|^δ` is a product
+    /// for δ = 2.
     #[inline]
-    pub fn sliding_force_with(&self, v: f64, w: f64, d: f64, s: f64, negligible: f64) -> f64 {
+    pub fn sliding_force_with(
+        &self,
+        v: f64,
+        w: f64,
+        d: f64,
+        s: f64,
+        rise_n: f64,
+        negligible: f64,
+    ) -> f64 {
         let q = (w.abs() / self.stribeck_velocity_m_per_s).max(1e-300);
-        let e = if self.static_force_n == self.coulomb_force_n {
+        let fs = self.static_force_n + rise_n;
+        let e = if fs == self.coulomb_force_n {
             0.0
         } else {
             let qd = if self.stribeck_exponent == 2.0 {
@@ -164,10 +221,7 @@ impl StaticMap {
                 (-qd).exp()
             }
         };
-        self.dir(d)
-            * s
-            * (self.coulomb_force_n + (self.static_force_n - self.coulomb_force_n) * e)
-            * d
+        self.dir(d) * s * (self.coulomb_force_n + (fs - self.coulomb_force_n) * e) * d
             + (1.0 + self.viscous_asymmetry * d) * self.viscous_n_s_per_m * v
     }
 
@@ -183,12 +237,18 @@ impl StaticMap {
 
     /// Partial derivatives of the sliding force of a static map (as
     /// [`StaticMap::sliding_force`]) at velocity `v`, lagged velocity `w`, direction `d` and
-    /// level `s`: (∂/∂v, ∂/∂w, ∂/∂s).
-    pub(crate) fn sliding_partials(&self, w: f64, d: f64, s: f64) -> (f64, f64, f64) {
+    /// level `s`, the static level raised by `rise_n`: (∂/∂v, ∂/∂w, ∂/∂s, ∂/∂rise).
+    pub(crate) fn sliding_partials(
+        &self,
+        w: f64,
+        d: f64,
+        s: f64,
+        rise_n: f64,
+    ) -> (f64, f64, f64, f64) {
         let dv = (1.0 + self.viscous_asymmetry * d) * self.viscous_n_s_per_m;
-        let span = self.static_force_n - self.coulomb_force_n;
+        let span = self.static_force_n + rise_n - self.coulomb_force_n;
         let q = (w.abs() / self.stribeck_velocity_m_per_s).max(1e-300);
-        let (e, de_dw) = if span == 0.0 {
+        let (e, de_dw) = if span == 0.0 && self.sliding_rise(1.0) == 0.0 {
             (0.0, 0.0)
         } else {
             let delta = self.stribeck_exponent;
@@ -206,6 +266,7 @@ impl StaticMap {
             dv,
             dir * s * span * de_dw * d,
             dir * (self.coulomb_force_n + span * e) * d,
+            dir * s * e * d,
         )
     }
 }

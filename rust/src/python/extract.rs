@@ -243,6 +243,7 @@ impl From<&PyIntegrator> for IntegratorOptions {
 pub(crate) struct PyDwell {
     pub(crate) rise_n: f64,
     pub(crate) time_constant_s: f64,
+    pub(crate) slip_distance_m: Option<f64>,
 }
 
 impl From<&PyDwell> for DwellStatic {
@@ -250,6 +251,7 @@ impl From<&PyDwell> for DwellStatic {
         DwellStatic {
             rise_n: d.rise_n,
             time_constant_s: d.time_constant_s,
+            slip_distance_m: d.slip_distance_m,
         }
     }
 }
