@@ -65,6 +65,7 @@ from nanostage.diagnosis.objective import (
     experiment_kind,
     gap_residual,
     hold_intervals,
+    hunting_ramps,
     move_units,
     noise_floor_m,
     simulate_readings_and_commands,
@@ -555,6 +556,41 @@ def test_hold_intervals_and_phase_insensitive_gap() -> None:
     # A different amplitude is still seen.
     r2 = gap_residual(meas, np.where(t >= 80, 1e-4 + 1e-6 * np.sin(2 * np.pi * t / 40), sim), ref)
     assert np.sqrt(np.mean(r2[200:] ** 2)) > 5e-7
+
+
+def test_a_hunting_ramp_compares_its_tracking_errors_as_distributions() -> None:
+    """A slow ramp (20 µm/s over 1 s) whose tracking error hunts by ±20 counts: the same
+    hunting in another phase leaves under a count RMS on the ramp (sorted tracking errors), a model
+    that tracks without hunting leaves the cycle's RMS, and a cycle half as large shows.
+    A ramp whose error does not hunt (a steady lag of 3 counts, reading noise of one
+    count; a ringing that dies out) is compared sample by sample."""
+    q = 1e-7
+    t = np.arange(1100)
+    ref = np.where(t < 50, 0.0, np.minimum(t - 49, 1000) * 2e-8)
+    assert hunting_ramps(ref, ref, q) == []
+
+    def hunting(amplitude_m: float, phase: float) -> np.ndarray:
+        e = np.where((t >= 60) & (t < 1050), amplitude_m * np.sin(2 * np.pi * t / 25 + phase), 0)
+        return np.round((ref + e) / q) * q
+
+    meas = hunting(2e-6, 0.0)
+    assert hunting_ramps(meas, ref, q) == [(50, 1050)]
+    r = gap_residual(meas, hunting(2e-6, 2.0), ref)
+    plain = hunting(2e-6, 2.0)
+    assert np.sqrt(np.mean((meas - plain)[60:1050] ** 2)) > 1.5e-6  # sample by sample
+    assert np.sqrt(np.mean(r[60:1050] ** 2)) < q  # as distributions: equal within a count
+    tracking = np.round(ref / q) * q
+    assert np.sqrt(np.mean(gap_residual(meas, tracking, ref)[60:1050] ** 2)) > 1.3e-6
+    half = gap_residual(meas, hunting(1e-6, 2.0), ref)
+    assert np.sqrt(np.mean(half[60:1050] ** 2)) > 6e-7
+    rng = np.random.default_rng(4)
+    lagging = np.round((ref - 3 * q + q * rng.integers(-1, 2, t.size)) / q) * q
+    assert hunting_ramps(lagging, ref, q) == []
+    # A ringing of ±8 counts after the ramp's start that dies out (time constant 400
+    # samples) is a transient, compared sample by sample.
+    ring = np.where(t >= 50, 8e-7 * np.exp(-(t - 50) / 400) * np.sin(2 * np.pi * t / 25), 0)
+    assert hunting_ramps(np.round((ref + ring) / q) * q, ref, q) == []
+    assert np.array_equal(gap_residual(lagging, tracking, ref), lagging - tracking)
 
 
 def test_best_shift_is_the_cheapest_clamped_shift() -> None:

@@ -113,6 +113,46 @@ def test_breakaway_needs_three_rests() -> None:
     assert "breakaway_per_decade_v" not in signatures_of(traces, T, Q)
 
 
+def _out_and_back(v_m_per_s: float, n: int, hold: int = 50) -> np.ndarray:
+    """A hold, a ramp out, a hold, the ramp back to the start, a hold."""
+    out = _ramp(v_m_per_s, n, 0.0)
+    back = _ramp(-v_m_per_s, n, float(out[-1]))
+    return np.concatenate([np.zeros(hold), out, np.full(hold, out[-1]), back, np.zeros(hold)])
+
+
+def test_reversal_lag_is_the_lost_motion_of_a_dead_band() -> None:
+    """A table that waits at each reversal while the motor crosses a band of width b (its
+    lag grows at the ramp speed up to b), then is pulled back onto the reference (the lag
+    decays with 30 ms): the ramps that reverse the one before give b each, whatever the
+    speed; the outward ramps (no ramp before them) count for nothing."""
+    width = 4e-6
+    traces = []
+    for v in (2e-5, 2e-4, 1e-3):
+        n = 400
+        ref = _out_and_back(v, n)
+        pos = ref.copy()
+        a = 50 + n + 50  # the back ramp's first sample
+        t = np.arange(ref.size - a) * T
+        t_cross = width / v
+        lag = np.where(t < t_cross, v * t, width * np.exp(-(t - t_cross) / 30e-3))
+        pos[a:] = ref[a:] + lag  # moving in −: lagging behind is above the reference
+        traces.append((ref, pos, None))
+    sig = signatures_of(traces, T, Q)
+    assert sig["reversal_lag_m"].value == pytest.approx(width, rel=1e-4)  # to a sample
+
+
+def test_reversal_lag_of_a_delay_is_zero_and_needs_a_reversed_ramp() -> None:
+    """A reading delayed by three samples lags by v·3T on every ramp, at the reversal as
+    later: no lost motion. A trace whose ramps go one way only has no reversal lag."""
+    ref = _out_and_back(2e-4, 400)
+    pos = np.concatenate([np.zeros(3), ref[:-3]])
+    sig = signatures_of([(ref, pos, None)], T, Q)
+    assert abs(sig["reversal_lag_m"].value) < 1e-15
+    one_way = np.concatenate([np.zeros(50), _ramp(2e-4, 400, 0.0)])
+    two_out = np.concatenate([one_way, np.full(50, one_way[-1]), _ramp(2e-4, 400, one_way[-1])])
+    assert "reversal_lag_m" not in signatures_of([(two_out, two_out.copy(), None)], T, Q)
+
+
 def test_distance_is_the_chi_square_over_shared_features() -> None:
     m = {"a": Feature(1.0, 0.3), "b": Feature(2.0, 1.0), "only_measured": Feature(5.0, 1.0)}
     s = {"a": Feature(2.0, 0.4), "b": Feature(2.0, 0.5), "only_simulated": Feature(0.0, 1.0)}

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from ..config import CascadeController, FpgaPid, System
 from ..experiment import Experiment
 from ..simulate import simulate_batch
+from .segments import limit_cycle
 from .settings import FloatArray
 
 __all__ = [
@@ -44,10 +45,12 @@ __all__ = [
     "gap_plan",
     "gap_residual",
     "hold_intervals",
+    "hunting_ramps",
     "move_units",
     "noise_floor_m",
     "output_limit_v",
     "proportional_gain_v_per_m",
+    "ramp_intervals",
     "reading_quantum",
     "repeat_pairs",
     "rms_of",
@@ -112,7 +115,9 @@ def gap_residual(
     the second half of that stretch, if it never does): there the *sorted* values are
     compared — the distribution of positions (mean, overshoot amplitude, limit-cycle
     amplitude) but not the phase of an oscillation, which no model reproduces sample by
-    sample once it is chaotic (backlash hunting, stick-slip).
+    sample once it is chaotic (backlash hunting, stick-slip). On a constant-velocity ramp
+    whose measured tracking error (position − reference) hunts (:func:`hunting_ramps`), the
+    sorted tracking errors are compared, for the same reason.
 
     A move that starts while the measured position is still hunting (the previous hold is
     unsettled at its end, see :data:`UNSETTLED_QUANTA`) starts from the phase of that
@@ -126,10 +131,69 @@ def gap_residual(
     return apply_gap_plan(gap_plan(measured_m, reference_m), measured_m, simulated_m)
 
 
-#: How :func:`gap_residual` compares one hold: ``(a, h, b, aligned, order)``: samples
-#: ``[a, h)`` sample by sample (after the best time shift when ``aligned``), ``[h, b)`` as
-#: sorted values (``order``: the measured samples' ranks there).
-HoldPlan = tuple[int, int, int, bool, npt.NDArray[np.intp]]
+#: How :func:`gap_residual` compares one window: ``(a, h, b, aligned, order, trend)``:
+#: samples ``[a, h)`` sample by sample (after the best time shift when ``aligned``),
+#: ``[h, b)`` as sorted values (``order``: the measured samples' ranks there) less
+#: ``trend`` (None for a hold; the reference over ``[h, b)`` for a hunting ramp, whose
+#: tracking errors are compared).
+HoldPlan = tuple[int, int, int, bool, npt.NDArray[np.intp], FloatArray | None]
+
+#: A window hunts when its error spans more than this many reading quanta and repeats
+#: itself: autocorrelation at the cycle's period at least
+#: :data:`LIMIT_CYCLE_MIN_CORRELATION` (the segmentation's :func:`.segments.limit_cycle`).
+HUNTING_QUANTA = 4.0
+LIMIT_CYCLE_MIN_CORRELATION = 0.5
+#: Shortest constant-velocity stretch of a reference counted as a ramp, samples.
+MIN_RAMP_SAMPLES = 40
+
+
+def ramp_intervals(reference_m: npt.ArrayLike) -> list[tuple[int, int, float]]:
+    """(start, stop, velocity per sample) of each constant-velocity stretch of the
+    reference with a nonzero velocity and at least :data:`MIN_RAMP_SAMPLES` samples."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    d = np.diff(ref)
+    out = []
+    k, n = 0, len(d)
+    while k < n:
+        if d[k] == 0.0:
+            k += 1
+            continue
+        j = k
+        tol = 1e-6 * abs(d[k])
+        while j + 1 < n and abs(d[j + 1] - d[k]) <= tol:
+            j += 1
+        if j + 1 - k >= MIN_RAMP_SAMPLES:
+            out.append((k + 1, j + 2, float(np.mean(d[k : j + 1]))))
+        k = j + 1
+    return out
+
+
+def hunting_ramps(
+    measured_m: npt.ArrayLike, reference_m: npt.ArrayLike, quantum_m: float
+) -> list[tuple[int, int]]:
+    """The constant-velocity ramps (:func:`ramp_intervals`) whose measured tracking error
+    still hunts in their second half, past the transient of the ramp's start: it spans
+    more than :data:`HUNTING_QUANTA` quanta about its straight-line trend there (a lag
+    settling slowly is no cycle), in the last quarter too (a ringing that dies out is a
+    transient, whose phase a model reproduces), and repeats itself (a limit cycle, e.g. a
+    backlash hunting while the reference moves slowly). That half must itself be a ramp's
+    length (:data:`MIN_RAMP_SAMPLES`): a short fast ramp is one transient."""
+    m = np.asarray(measured_m, dtype=np.float64)
+    ref = np.asarray(reference_m, dtype=np.float64)
+    out = []
+    for a, b, _ in ramp_intervals(ref):
+        half = (b - a) // 2
+        if half < MIN_RAMP_SAMPLES:
+            continue
+        err = m[b - half : b] - ref[b - half : b]
+        k = np.arange(half, dtype=np.float64)
+        err = err - np.polyval(np.polyfit(k, err, 1), k)
+        span = HUNTING_QUANTA * quantum_m
+        if float(np.ptp(err)) > span and float(np.ptp(err[half // 2 :])) > span and (
+            limit_cycle(err, 1.0, LIMIT_CYCLE_MIN_CORRELATION, quantum_m) is not None
+        ):
+            out.append((a, b))
+    return out
 
 
 def gap_plan(measured_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> list[HoldPlan]:
@@ -148,10 +212,13 @@ def gap_plan(measured_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> list[Hold
         start_side = side[0]
         crossed = np.flatnonzero(side != start_side) if start_side != 0 else np.array([0])
         h = a + int(crossed[0]) if crossed.size else a + (b - a) // 2
-        plan.append((a, h, b, unsettled and h > a, np.argsort(m[h:b], kind="stable")))
+        plan.append((a, h, b, unsettled and h > a, np.argsort(m[h:b], kind="stable"), None))
         tail = m[max(a, b - SETTLE_WINDOW) : b]
         spread = float(np.ptp(tail)) if tail.size else 0.0
         unsettled = spread > UNSETTLED_QUANTA * q and spread > UNSETTLED_STEP_FRACTION * step
+    for a, b in hunting_ramps(m, ref, q):
+        trend = ref[a:b].copy()
+        plan.append((a, a, b, False, np.argsort(m[a:b] - trend, kind="stable"), trend))
     return plan
 
 
@@ -162,13 +229,17 @@ def apply_gap_plan(
     m = np.asarray(measured_m, dtype=np.float64)
     s = np.asarray(simulated_m, dtype=np.float64)
     r = m - s
-    for a, h, b, aligned_move, order in plan:
+    for a, h, b, aligned_move, order, trend in plan:
         if aligned_move:
             r[a:h] = m[a:h] - _best_shift(m, s, a, h, SETTLE_WINDOW)
         if b - h > 1:
             aligned = np.empty(b - h)
-            aligned[order] = np.sort(s[h:b])
-            r[h:b] = m[h:b] - aligned
+            if trend is None:
+                aligned[order] = np.sort(s[h:b])
+                r[h:b] = m[h:b] - aligned
+            else:
+                aligned[order] = np.sort(s[h:b] - trend)
+                r[h:b] = (m[h:b] - trend) - aligned
     return r
 
 
@@ -177,9 +248,13 @@ def command_plan(plan: Sequence[HoldPlan], measured_v: npt.ArrayLike) -> list[Ho
     the same windows compared the same way (sample by sample, time-shifted after an
     unsettled hold, as sorted values in the settled part of each hold), the sorted
     comparison ranking the measured command's own values. A limit cycle's phase shows in
-    the command as in the position, and no model predicts it."""
+    the command as in the position, and no model predicts it. (A hunting ramp's command has
+    no trend: its own values are sorted.)"""
     c = np.asarray(measured_v, dtype=np.float64)
-    return [(a, h, b, aligned, np.argsort(c[h:b], kind="stable")) for a, h, b, aligned, _ in plan]
+    return [
+        (a, h, b, aligned, np.argsort(c[h:b], kind="stable"), None)
+        for a, h, b, aligned, _, _ in plan
+    ]
 
 
 def channel_units(r: FloatArray, n: int, units: Sequence[tuple[int, int]]) -> list[float]:

@@ -314,8 +314,8 @@ def pick_winner(
     closest tied model's miss of it where that exceeds its errors) and
     ``signature_margin`` > 0, the tied candidates are first narrowed to those whose χ² lies
     within ``signature_margin`` of the closest one. What the gap cannot tell apart, the
-    traces' limit cycles, rest commands, ramp commands and breakaways may. Without them,
-    or with one tied candidate, the choice is as above."""
+    traces' limit cycles, rest commands, ramp commands, breakaways and reversal lags may.
+    Without them, or with one tied candidate, the choice is as above."""
     best = next((r for r in results if r.significant), None)
     if best is None:
         return None

@@ -27,6 +27,13 @@ leave different marks on the traces, and these marks are measured directly:
     ``level + slope·|v|``: half the difference of the levels (the sliding friction), their
     mean (an offset or an asymmetry of the levels) and the mean slope (viscous friction;
     needs ramps at two or more speeds);
+``reversal_lag_m``
+    the lost motion at a reversal: on each constant-velocity ramp that reverses the ramp
+    before it in the same trace (a hold between them at most), the largest lag of the
+    reading behind the reference in the ramp's first half, less its steady lag (median of
+    the last quarter); the median over such ramps. A dead band (backlash) or a compliance
+    lets the motor move while the table waits (up to the band's width, or twice the
+    friction over the stiffness); a delay or a lag loses only its time times the speed;
 ``breakaway_per_decade_v``
     the rise of the peak command of a move (until it has settled at its next target) per
     decade of the rest before it, among moves of the same step
@@ -40,6 +47,7 @@ no command) is left out, never guessed."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -50,9 +58,12 @@ import numpy.typing as npt
 from ..config import System
 from ..experiment import Experiment
 from .objective import (
+    HUNTING_QUANTA,
+    LIMIT_CYCLE_MIN_CORRELATION,
     SimulationCache,
     autocorrelation_time,
     hold_intervals,
+    ramp_intervals,
     reading_quantum,
     simulate_readings_and_commands,
 )
@@ -81,16 +92,14 @@ SIGNATURE_UNITS: dict[str, str] = {
     "ramp_bias_v": "V",
     "ramp_slope_v_s_per_m": "V·s/m",
     "breakaway_per_decade_v": "V",
+    "reversal_lag_m": "m",
 }
 
-#: A hold hunts when its settled error spans more than this many reading quanta and
-#: repeats itself (autocorrelation at the cycle's period at least
-#: :data:`LIMIT_CYCLE_MIN_CORRELATION`, the segmentation's default).
-HUNTING_QUANTA = 4.0
-LIMIT_CYCLE_MIN_CORRELATION = 0.5
-#: Shortest constant-velocity stretch of a ramp used, samples (its first half is skipped as
-#: the transient).
-MIN_RAMP_SAMPLES = 40
+# A hold hunts when its settled error spans more than HUNTING_QUANTA reading quanta and
+# repeats itself (autocorrelation at the cycle's period at least
+# LIMIT_CYCLE_MIN_CORRELATION, the segmentation's default); ramps are constant-velocity
+# stretches of at least MIN_RAMP_SAMPLES samples (their first half skipped as the
+# transient): the gap's own definitions (:mod:`.objective`).
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,26 +142,6 @@ def _median_feature(
     return Feature(float(np.median(v)), max(se, floor))
 
 
-def _ramps(ref: npt.NDArray[np.float64]) -> list[tuple[int, int, float]]:
-    """(start, stop, velocity per sample) of each constant-velocity stretch of the
-    reference with a nonzero velocity and at least :data:`MIN_RAMP_SAMPLES` samples."""
-    d = np.diff(ref)
-    out = []
-    k, n = 0, len(d)
-    while k < n:
-        if d[k] == 0.0:
-            k += 1
-            continue
-        j = k
-        tol = 1e-6 * abs(d[k])
-        while j + 1 < n and abs(d[j + 1] - d[k]) <= tol:
-            j += 1
-        if j + 1 - k >= MIN_RAMP_SAMPLES:
-            out.append((k + 1, j + 2, float(np.mean(d[k : j + 1]))))
-        k = j + 1
-    return out
-
-
 def signatures_of(
     traces: Sequence[Trace],
     sample_period_s: float,
@@ -173,6 +162,7 @@ def signatures_of(
     ramp_rows: list[tuple[int, float, float, float]] = []
     # (size of the move's first step in counts, log10 rest s, peak |command| V)
     breakaway: list[tuple[int, float, float]] = []
+    reversal_lags: list[float] = []
     for reference, position, command in traces:
         ref = np.asarray(reference, dtype=np.float64)
         pos = np.asarray(position, dtype=np.float64)
@@ -215,8 +205,9 @@ def signatures_of(
                 frequencies.append(1.0 / cycle.period_s)
             if cmd is not None and step != 0.0:
                 rest[1 if step > 0 else -1].append(_window_mean(cmd[b - n_tail : b], cq))
+        reversal_lags.extend(_reversal_lags(ref, pos))
         if cmd is not None:
-            for a, b, v in _ramps(ref):
+            for a, b, v in ramp_intervals(ref):
                 mid = a + (b - a) // 2
                 mean, se = _window_mean(cmd[mid:b], cq)
                 ramp_rows.append((1 if v > 0 else -1, abs(v) / sample_period_s, mean, se))
@@ -243,6 +234,24 @@ def signatures_of(
         out["rest_command_mean_v"] = Feature((up.value + down.value) / 2.0, se)
     out.update(_ramp_features(ramp_rows, cq))
     out.update(_breakaway_feature(breakaway, cq))
+    f = _median_feature(reversal_lags, q)
+    if f is not None:
+        out["reversal_lag_m"] = f
+    return out
+
+
+def _reversal_lags(ref: npt.NDArray[np.float64], pos: npt.NDArray[np.float64]) -> list[float]:
+    """Per constant-velocity ramp of ``ref`` that reverses the ramp before it with at most
+    a hold between them: the largest lag of ``pos`` behind ``ref`` (in the ramp's
+    direction) over the ramp's first half, less its median over the last quarter (m)."""
+    out = []
+    ramps = ramp_intervals(ref)
+    for (_, stop0, v0), (a, b, v) in itertools.pairwise(ramps):
+        if v * v0 >= 0.0 or np.ptp(ref[stop0 - 1 : a]) != 0.0:
+            continue
+        lag = (ref[a:b] - pos[a:b]) * (1.0 if v > 0.0 else -1.0)
+        n = b - a
+        out.append(float(np.max(lag[: n // 2]) - np.median(lag[n - n // 4 :])))
     return out
 
 
