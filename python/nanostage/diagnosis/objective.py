@@ -189,8 +189,10 @@ def hunting_ramps(
         k = np.arange(half, dtype=np.float64)
         err = err - np.polyval(np.polyfit(k, err, 1), k)
         span = HUNTING_QUANTA * quantum_m
-        if float(np.ptp(err)) > span and float(np.ptp(err[half // 2 :])) > span and (
-            limit_cycle(err, 1.0, LIMIT_CYCLE_MIN_CORRELATION, quantum_m) is not None
+        if (
+            float(np.ptp(err)) > span
+            and float(np.ptp(err[half // 2 :])) > span
+            and (limit_cycle(err, 1.0, LIMIT_CYCLE_MIN_CORRELATION, quantum_m) is not None)
         ):
             out.append((a, b))
     return out
