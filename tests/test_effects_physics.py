@@ -469,8 +469,7 @@ def test_breakaway_force_rises_with_dwell_time():
         fmap = StaticFrictionMap(
             static_force_n=fs, coulomb_force_n=8.0, viscous_n_s_per_m=100.0, dwell=dwell
         )
-        plant = ForceDrivePlant(drive_gain_n_per_v=gain, mass_kg=1.0, friction=fmap)
-        system = System(plant=plant, controller=CascadeController(kp_per_s=100, kv_v_s_per_m=10))
+        system = System(plant=_force_drive(fmap, mass=1.0, gain=gain), controller=_ANY_CASCADE)
         forces = []
         for hold in (0.0, 0.1, 0.5, 2.0, 5.0):
             t = np.arange(round((hold + 0.6) / period)) * period
@@ -518,8 +517,7 @@ def test_contact_ageing_law_matches_scipy():
             stribeck_velocity_m_per_s=vs,
             dwell=dwell,
         )
-        plant = ForceDrivePlant(drive_gain_n_per_v=gain, mass_kg=1.0, friction=fmap)
-        system = System(plant=plant, controller=CascadeController(kp_per_s=100, kv_v_s_per_m=10))
+        system = System(plant=_force_drive(fmap, mass=1.0, gain=gain), controller=_ANY_CASCADE)
         tr = simulate_open_loop(system, force / gain, sample_period_s=period)
         assert np.all(tr.position_m[: n_hold + 1] == 0.0)
         return np.asarray(tr.position_m[n_hold:])

@@ -205,9 +205,10 @@ def signatures_of(
                 frequencies.append(1.0 / cycle.period_s)
             if cmd is not None and step != 0.0:
                 rest[1 if step > 0 else -1].append(_window_mean(cmd[b - n_tail : b], cq))
-        reversal_lags.extend(_reversal_lags(ref, pos))
+        ramps = ramp_intervals(ref)
+        reversal_lags.extend(_reversal_lags(ref, pos, ramps))
         if cmd is not None:
-            for a, b, v in ramp_intervals(ref):
+            for a, b, v in ramps:
                 mid = a + (b - a) // 2
                 mean, se = _window_mean(cmd[mid:b], cq)
                 ramp_rows.append((1 if v > 0 else -1, abs(v) / sample_period_s, mean, se))
@@ -240,12 +241,16 @@ def signatures_of(
     return out
 
 
-def _reversal_lags(ref: npt.NDArray[np.float64], pos: npt.NDArray[np.float64]) -> list[float]:
-    """Per constant-velocity ramp of ``ref`` that reverses the ramp before it with at most
-    a hold between them: the largest lag of ``pos`` behind ``ref`` (in the ramp's
+def _reversal_lags(
+    ref: npt.NDArray[np.float64],
+    pos: npt.NDArray[np.float64],
+    ramps: Sequence[tuple[int, int, float]],
+) -> list[float]:
+    """Per constant-velocity ramp of ``ref`` (``ramps``, its
+    :func:`.objective.ramp_intervals`) that reverses the ramp before it with at most a hold
+    between them: the largest lag of ``pos`` behind ``ref`` (in the ramp's
     direction) over the ramp's first half, less its median over the last quarter (m)."""
     out = []
-    ramps = ramp_intervals(ref)
     for (_, stop0, v0), (a, b, v) in itertools.pairwise(ramps):
         if v * v0 >= 0.0 or np.ptp(ref[stop0 - 1 : a]) != 0.0:
             continue
