@@ -746,7 +746,7 @@ impl Drive {
         }
         for j in 0..self.n_mass {
             if let (Some(k), Some(m)) = (self.i_clock[j], self.clock_map(j)) {
-                if modes[j] != MassMode::Stuck && m.clock_rate(0.0, 0.0) != (0.0, 0.0, 0.0) {
+                if modes[j] != MassMode::Stuck && m.ageing().is_some() {
                     let (_, d_age, d_v) = m.clock_rate(y[2 * j + 1], y[k]);
                     set(k, k, d_age);
                     set(k, 2 * j + 1, d_v);
@@ -1212,7 +1212,7 @@ where
                 self.modes[j] = if f.abs() <= cap || force_stuck {
                     // The breakaway-only clock restarts; the contact age runs on.
                     if let (Some(k), Some(m)) = (self.drive.i_clock[j], self.drive.clock_map(j)) {
-                        if m.clock_rate(0.0, 0.0) == (0.0, 0.0, 0.0) {
+                        if m.ageing().is_none() {
                             self.y[k] = 0.0;
                         }
                     }

@@ -5,7 +5,9 @@
 //! friction levels. The direction `d` (±1) of the current slip segment replaces
 //! `sgn v`, so each law is smooth inside a segment; the stick/slip logic of the plants
 //! (`rigid.rs`, `component.rs`) handles v = 0.
-use super::component_params::{Gms, LuGre, Modulation, StaticMap, TableDahl, TableFriction};
+use super::component_params::{
+    DwellStatic, Gms, LuGre, Modulation, StaticMap, TableDahl, TableFriction,
+};
 use super::params::{DahlFriction, StribeckFriction};
 
 impl StribeckFriction {
@@ -132,28 +134,35 @@ impl StaticMap {
         self.sliding_force_with(v, w, d, s, 0.0, f64::INFINITY)
     }
 
+    /// The dwell law and its slip distance `D_c` when the dwell law is the contact-ageing
+    /// law (None without a dwell law or with its breakaway-only form).
+    #[inline]
+    pub(crate) fn ageing(&self) -> Option<(&DwellStatic, f64)> {
+        self.dwell
+            .as_ref()
+            .and_then(|dw| dw.slip_distance_m.map(|dc| (dw, dc)))
+    }
+
     /// The contact-ageing law's rise of the static level at age `age_s`,
     /// `ΔFs·θ/(θ + γ)` (0 without the dwell law or with its breakaway-only form, where the
     /// rise enters the capacity alone).
     #[inline]
     pub fn sliding_rise(&self, age_s: f64) -> f64 {
-        match &self.dwell {
-            Some(dw) if dw.slip_distance_m.is_some() => {
-                dw.rise_n * age_s / (age_s + dw.time_constant_s)
-            }
-            _ => 0.0,
+        match self.ageing() {
+            Some((dw, _)) => dw.rise_n * age_s / (age_s + dw.time_constant_s),
+            None => 0.0,
         }
     }
 
     /// `∂/∂θ` of [`Self::sliding_rise`].
     #[inline]
     pub(crate) fn sliding_rise_slope(&self, age_s: f64) -> f64 {
-        match &self.dwell {
-            Some(dw) if dw.slip_distance_m.is_some() => {
+        match self.ageing() {
+            Some((dw, _)) => {
                 let g = dw.time_constant_s;
                 dw.rise_n * g / ((age_s + g) * (age_s + g))
             }
-            _ => 0.0,
+            None => 0.0,
         }
     }
 
@@ -163,8 +172,8 @@ impl StaticMap {
     /// a slip of about `D_c`), and its partials (∂/∂θ, ∂/∂v).
     #[inline]
     pub(crate) fn clock_rate(&self, v: f64, age_s: f64) -> (f64, f64, f64) {
-        match self.dwell.as_ref().and_then(|dw| dw.slip_distance_m) {
-            Some(dc) => (
+        match self.ageing() {
+            Some((_, dc)) => (
                 1.0 - v.abs() * age_s / dc,
                 -v.abs() / dc,
                 -v.signum() * age_s / dc,
@@ -178,10 +187,7 @@ impl StaticMap {
     /// `+∞` (never skip) when `Fc = 0`.
     pub fn negligible_exponent(&self) -> f64 {
         // The contact-ageing law raises the level by at most ΔFs.
-        let most_rise = match &self.dwell {
-            Some(dw) if dw.slip_distance_m.is_some() => dw.rise_n,
-            _ => 0.0,
-        };
+        let most_rise = self.ageing().map_or(0.0, |(dw, _)| dw.rise_n);
         let span = self.static_force_n + most_rise - self.coulomb_force_n;
         if self.coulomb_force_n > 0.0 && span > 0.0 {
             (span / self.coulomb_force_n).ln() + 55.0 * std::f64::consts::LN_2 + 1.0
