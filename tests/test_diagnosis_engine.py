@@ -45,6 +45,7 @@ from nanostage.diagnosis.candidates import (
 )
 from nanostage.diagnosis.fit import AT_BOUND, Fit, FitProblem, at_bounds
 from nanostage.diagnosis.loop import (
+    BIAS_ALIASES,
     FRICTION_MODELS,
     LAG_FAMILY,
     _Ctx,
@@ -337,6 +338,30 @@ def test_refine_the_best_friction_model_outside_the_best_four() -> None:
     assert refine_names(order, dc.replace(st, refine_best_friction_model=False)) == top4
     assert refine_names(order[:5], st) == top4
     assert refine_names(ranked("gms", "offset_force"), st) == ["gms", "offset_force"]
+
+
+def test_a_refined_offset_or_asymmetry_refines_its_alias() -> None:
+    """An offset force and an asymmetric friction are refined together: the one outside
+    the best four joins when the other is among them (in either role), after the usual
+    refits and once; neither joins when neither is refined, or when turned off."""
+
+    def ranked(*names: str) -> list[CandidateResult]:
+        return [cast(CandidateResult, SimpleNamespace(effect=n, shrink=0.0)) for n in names]
+
+    st = DiagnosisSettings()
+    rest = ["lugre", "drive_compliance", "backlash", "lead_periodic_friction", "sensor_delay"]
+    order = ranked("offset_force", *rest[:3], "asymmetric_friction", *rest[3:])
+    usual = ["offset_force", *rest[:3]]
+    assert refine_names(order, st) == [*usual, "asymmetric_friction"]
+    flipped = ranked("asymmetric_friction", *rest[:3], "offset_force", *rest[3:])
+    assert refine_names(flipped, st) == ["asymmetric_friction", *rest[:3], "offset_force"]
+    both = ranked("offset_force", "asymmetric_friction", *rest)
+    assert refine_names(both, st) == ["offset_force", "asymmetric_friction", *rest[:2]]
+    neither = ranked(*rest, "offset_force", "asymmetric_friction")
+    assert refine_names(neither, st) == rest[:4]
+    off = dc.replace(st, refine_bias_aliases=False)
+    assert refine_names(order, off) == usual
+    assert set(BIAS_ALIASES) <= set(CANDIDATES)
 
 
 def test_a_calibration_at_its_bounds_refines_the_whole_lag_family() -> None:

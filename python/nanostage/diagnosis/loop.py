@@ -55,6 +55,13 @@ LAG_FAMILY = (
     "amplifier_dynamics",
 )
 
+#: The effects that shift the sliding force by direction: an offset force and a direction
+#: asymmetry of the friction levels are aliases while sliding (a bias of F₀ against one of
+#: a·Fc) and differ only at rest and at breakaway. When either is refined, so is the other
+#: (:attr:`DiagnosisSettings.refine_bias_aliases`), so that the two are told apart at equal
+#: effort rather than by which one screened better.
+BIAS_ALIASES = ("offset_force", "asymmetric_friction")
+
 #: A train/validate split of experiments.
 Split = tuple[Sequence[Experiment], Sequence[Experiment]]
 
@@ -737,9 +744,12 @@ def refine_names(
     """The candidates of a round refitted from all starts, from its screened results (best
     first): the best :attr:`DiagnosisSettings.refine_top`, and with
     :attr:`DiagnosisSettings.refine_best_friction_model` the best-screened friction-model
-    candidate outside them (one at most); with ``lag_family`` (the model before has a free
-    parameter at its bound) and :attr:`DiagnosisSettings.refine_lag_family_at_bounds`, or
-    with ``missed_marks`` (the model before misses a mark of the traces) and
+    candidate outside them (one at most); with
+    :attr:`DiagnosisSettings.refine_bias_aliases`, the other member of
+    :data:`BIAS_ALIASES` when one of them is refined; with ``lag_family`` (the model
+    before has a free parameter at its bound) and
+    :attr:`DiagnosisSettings.refine_lag_family_at_bounds`, or with ``missed_marks`` (the
+    model before misses a mark of the traces) and
     :attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`, then every other member
     of :data:`LAG_FAMILY` among them, in screening order, but for those whose screened
     validation gap is more than :attr:`DiagnosisSettings.lag_refit_max_gap_ratio` times
@@ -750,6 +760,8 @@ def refine_names(
         best = next(rest, None)
         if best is not None:
             names.append(best)
+    if st.refine_bias_aliases and any(n in BIAS_ALIASES for n in names):
+        names += [r.effect for r in results if r.effect in BIAS_ALIASES and r.effect not in names]
     if lag_refits_due(st, lag_family, missed_marks):
         skip = set(hopeless_lag_refits(results, st))
         names += [
