@@ -93,6 +93,7 @@ from nanostage.diagnosis.select import (
 from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
 from nanostage.effects import (
     EFFECT_NAMES,
+    Backlash,
     DwellStaticFriction,
     Effects,
     EncoderErrors,
@@ -1306,6 +1307,37 @@ def test_simulation_cache_looks_up_repeats_and_drops_the_least_recently_used() -
     assert cache.hits == 4
     with pytest.raises(ValueError, match="max_bytes"):
         SimulationCache(-1.0)
+
+
+def test_a_backlash_of_open_flank_starts_against_the_flank_that_fits_the_trace() -> None:
+    """A dead band rests against the flank of the last move before a run, which a trace
+    does not record: with ``initial_flank`` None each experiment is simulated from both
+    flanks and the one whose reading is closer to the measured one is kept, bit for bit
+    that flank's simulation; a flank the model sets is simulated as set."""
+    base = presets.seed(1e-3)
+
+    def with_flank(flank: float | None) -> System:
+        fx = Effects(backlash=Backlash(width_m=15e-6, initial_flank=flank))
+        return dc.replace(base, effects=fx)
+
+    ref = np.r_[np.zeros(20), np.full(280, 1e-4)] + 2e-3
+    t = np.arange(ref.size) * base.sample_period_s
+    sims = {}
+    for flank in (1.0, -1.0):
+        dummy = Experiment(name="d", time_s=t, reference_m=ref, position_m=ref.copy())
+        sims[flank] = simulate_readings_and_commands([with_flank(flank)], [dummy])[0]
+    # The two flanks give different first moves (the full dead band crossed, or none).
+    assert float(np.max(np.abs(sims[1.0][0] - sims[-1.0][0]))) > 5e-6
+    for flank in (1.0, -1.0):
+        measured = Experiment(
+            name=f"m{flank}", time_s=t, reference_m=ref, position_m=sims[flank][0]
+        )
+        ((reading, command),) = simulate_readings_and_commands([with_flank(None)], [measured])
+        assert np.array_equal(reading, sims[flank][0])
+        assert np.array_equal(command, sims[flank][1])
+        # A set flank is simulated as set, whatever the trace.
+        ((fixed, _),) = simulate_readings_and_commands([with_flank(-flank)], [measured])
+        assert np.array_equal(fixed, sims[-flank][0])
 
 
 def test_cli_rejects_an_unknown_effect_before_fitting(tmp_path: Path) -> None:

@@ -629,6 +629,35 @@ def test_backlash_dead_band_on_reversal():
     assert np.abs(rel).max() == pytest.approx(FC / DriveCompliance().stiffness_n_per_m, rel=0.2)
 
 
+@pytest.mark.parametrize("flank", [1.0, 0.0, -1.0])
+def test_backlash_initial_flank_sets_the_lost_motion_of_the_first_move(flank):
+    """With the drive side resting at ``initial_flank`` × half the band (+1: against the
+    flank that pushes the table toward +x), a forward push moves the motor side through
+    (1 − flank)/2 of the band before the table follows: none from the +1 flank, half from
+    the centre, all of it from −1."""
+    width = 20e-6
+    period, n = 1e-4, 300
+    base = presets.seed(1e-3)
+    fx = Effects(backlash=Backlash(width_m=width, initial_flank=flank))
+    tr = simulate_open_loop(
+        dataclasses.replace(base, effects=fx), np.full(n, 2.0), sample_period_s=period
+    )
+    xm, xt = tr.motor_position_m, tr.position_m
+    assert xm[0] - xt[0] == pytest.approx(flank * width / 2, abs=1e-15)
+    # The motor side's travel when the table has moved by 0.5 µm (beyond its presliding).
+    k = int(np.argmax(xt - xt[0] > 0.5e-6))
+    assert k > 0
+    lost = (xm[k] - xm[0]) - (xt[k] - xt[0])
+    assert lost == pytest.approx((1.0 - flank) / 2 * width, abs=0.1 * width)
+
+
+def test_backlash_initial_flank_outside_its_range_is_rejected():
+    base = presets.seed(1e-3)
+    fx = Effects(backlash=Backlash(width_m=20e-6, initial_flank=1.5))
+    with pytest.raises(ValueError, match="initial_flank"):
+        simulate(dataclasses.replace(base, effects=fx), np.zeros(10))
+
+
 # --------------------------------------------------------------------------------------
 # 8. Drive-train resonance
 # --------------------------------------------------------------------------------------

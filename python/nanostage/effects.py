@@ -202,11 +202,18 @@ class StochasticFriction:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Backlash:
     """Gearhead backlash: a dead band of total width ``width_m`` (at the table) in the first
-    link of the drive train, with contact stiffness and damping."""
+    link of the drive train, with contact stiffness and damping. ``initial_flank``, in
+    [-1, 1]: where the drive side rests in the dead band when a run starts (+1 against the
+    flank that pushes the table toward +x, as after a positive move; -1 the other; 0 the
+    centre). None (the default): not known; a simulation starts at the centre, and a
+    simulation compared with a measured trace (the diagnosis) starts against the flank
+    that reproduces the trace better
+    (:func:`nanostage.diagnosis.objective.simulate_readings_and_commands`)."""
 
     width_m: float = 20e-6
     contact_stiffness_n_per_m: float = 5e7
     damping_n_s_per_m: float = 2e3
+    initial_flank: float | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -375,6 +375,13 @@ def generate_case(
         # The axis rests anywhere in the reference's count (the controller sees counts
         # only), in its middle half: nearer an edge the sensor noise flickers the reading.
         start = math.floor(x0 / q) * q + float(rng.uniform(0.25, 0.75)) * q
+        b = sys_i.effects.backlash
+        if b is not None:
+            # A backlash rests against the flank of the last move before the run, either
+            # side (the runs come in no known order).
+            flank = float(rng.choice([-1.0, 1.0]))
+            fx = dc.replace(sys_i.effects, backlash=dc.replace(b, initial_flank=flank))
+            sys_i = dc.replace(sys_i, effects=fx)
         tr = simulate(sys_i, ref, seed=seed * 1000 + i, initial_position_m=start)
         exp = Experiment(
             name=f"exp{i:02d}",

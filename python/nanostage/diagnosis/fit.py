@@ -235,7 +235,9 @@ class FitProblem:
         ones), and the
         best of them (if better than the warm start) is fitted first: instead of the warm
         start when only one start is allowed, else right after it. ``scan_starts`` > 1 adds
-        the next best scanned points (better than the warm start) as further starts."""
+        the next best scanned points (better than the warm start) as further starts. With
+        warm parameters and a ``prior`` start, the same points are scanned from the prior
+        start too, and it takes the drawn values of the best of them (if better)."""
         k = len(self.params)
         self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
         if k == 0:
@@ -250,6 +252,7 @@ class FitProblem:
             )
         first = np.array([1.0 + p.to_unit(p.initial) for _, p in self.params])
         starts = [first]
+        second: FloatArray | None = None
         if prior is not None:
             second = np.array(
                 [1.0 + p.to_unit(v) for (_, p), v in zip(self.params, prior, strict=True)]
@@ -263,18 +266,33 @@ class FitProblem:
             # in a poor local optimum. The best scanned point replaces the warm start when
             # it is better, else it becomes the next start.
             rows = qmc.LatinHypercube(d=n_draw, seed=seed + 7919).random(scan)
-            cands = []
-            for row in rows:
-                u = first.copy()
-                u[k - n_draw :] = 1.0 + row
-                cands.append(u)
-            costs = [float(np.sum(v**2)) for v in self._vectors([first, *cands])]
+
+            def scanned_from(start: FloatArray) -> list[FloatArray]:
+                # The scanned points that beat `start` (its drawn parameters at the scan's
+                # rows, the others kept), best first.
+                cands = []
+                for row in rows:
+                    u = start.copy()
+                    u[k - n_draw :] = 1.0 + row
+                    cands.append(u)
+                costs = [float(np.sum(v**2)) for v in self._vectors([start, *cands])]
+                return [
+                    cands[i - 1]
+                    for i in np.argsort(costs, kind="stable")
+                    if i > 0 and costs[i] < costs[0]
+                ]
+
             # The best `scan_starts` scanned points that beat the warm start, best first.
-            best_scanned = [
-                cands[i - 1]
-                for i in np.argsort(costs, kind="stable")
-                if i > 0 and costs[i] < costs[0]
-            ][: max(scan_starts, 1)]
+            best_scanned = scanned_from(first)[: max(scan_starts, 1)]
+            if second is not None and n_warm > 0 and second is starts[-1]:
+                # The prior start is scanned too, and takes its best values of the drawn
+                # (effect) parameters: the warm free values may be bent to mimic the missing
+                # effect (a calibration at its bounds), so that at them the effect's own
+                # size fits worse than a token one; at the prior's unbent values, with the
+                # effect at its best size there, lies the other basin worth a local fit.
+                from_prior = scanned_from(second)
+                if from_prior:
+                    second[k - n_draw :] = from_prior[0][k - n_draw :]
             if best_scanned:
                 if n_starts <= 1:
                     starts[0:1] = best_scanned  # instead of the warm start

@@ -20,6 +20,7 @@ import math
 import threading
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +30,10 @@ from ..experiment import Experiment
 from ..simulate import simulate_batch
 from .segments import limit_cycle
 from .settings import FloatArray
+
+#: The flanks a backlash whose initial flank is open may rest against at the start of a
+#: run (:func:`simulate_readings_and_commands`), in the order a tie is decided.
+BACKLASH_FLANKS: tuple[float, float] = (1.0, -1.0)
 
 __all__ = [
     "SimulationCache",
@@ -324,7 +329,13 @@ def simulate_readings_and_commands(
     systems: Sequence[System], experiments: Sequence[Experiment], threads: int = 0
 ) -> list[tuple[FloatArray, FloatArray]]:
     """:func:`simulate_reading_and_command` for each (system, experiment) pair, simulated in
-    one parallel batch of the core (``threads`` workers; 0: one per CPU)."""
+    one parallel batch of the core (``threads`` workers; 0: one per CPU).
+
+    The run starts at rest where the measured trace starts. A backlash whose initial flank
+    the system leaves open (``Backlash.initial_flank`` None) rests against one of its two
+    flanks, the side of the last move before the run, which the trace does not record:
+    both are simulated, and the one whose reading is closer to the measured one (the
+    :func:`gap_residual`; +1 on a tie) is kept."""
     for system, exp in zip(systems, experiments, strict=True):
         t = system.sample_period_s
         if abs(exp.sample_period_s - t) > 1e-3 * t:
@@ -332,25 +343,41 @@ def simulate_readings_and_commands(
                 f"experiment {exp.name!r} ({exp.source}): sample period "
                 f"{exp.sample_period_s:g} s differs from the controller's {t:g} s"
             )
+    # Each pair's runs: the system itself, or its flank variants.
+    runs: list[tuple[int, System]] = []
+    for j, system in enumerate(systems):
+        b = system.effects.backlash
+        if b is not None and b.initial_flank is None:
+            for flank in BACKLASH_FLANKS:
+                fx = replace(system.effects, backlash=replace(b, initial_flank=flank))
+                runs.append((j, replace(system, effects=fx)))
+        else:
+            runs.append((j, system))
     traces = simulate_batch(
-        systems,
-        [e.reference_m for e in experiments],
-        force_disturbances_n=[e.disturbance_n for e in experiments],
-        command_disturbances_v=[e.disturbance_v for e in experiments],
+        [s for _, s in runs],
+        [experiments[j].reference_m for j, _ in runs],
+        force_disturbances_n=[experiments[j].disturbance_n for j, _ in runs],
+        command_disturbances_v=[experiments[j].disturbance_v for j, _ in runs],
         initial_positions_m=[
-            float(e.position_m[0]) + 0.5 * s.encoder.count_m
-            for s, e in zip(systems, experiments, strict=True)
+            float(experiments[j].position_m[0]) + 0.5 * s.encoder.count_m for j, s in runs
         ],
         threads=threads,
     )
-    out = []
-    for system, tr in zip(systems, traces, strict=True):
+    out: list[tuple[FloatArray, FloatArray] | None] = [None] * len(systems)
+    best = [math.inf] * len(systems)
+    for (j, system), tr in zip(runs, traces, strict=True):
         q = system.encoder.count_m
         x = tr.motor_position_m if system.encoder.side == "motor" else tr.position_m
         reading: FloatArray = x - 0.5 * q
         command: FloatArray = tr.command * tr.output_unit_v
-        out.append((reading, command))
-    return out
+        if system is systems[j]:
+            out[j] = (reading, command)
+            continue
+        e = experiments[j]
+        cost = float(np.sum(gap_residual(e.position_m, reading, e.reference_m) ** 2))
+        if cost < best[j]:
+            best[j], out[j] = cost, (reading, command)
+    return [o for o in out if o is not None]
 
 
 class SimulationCache:

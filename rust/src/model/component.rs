@@ -1309,11 +1309,20 @@ impl AnyDrivePlant {
         each!(self, p => p.modes)
     }
 
-    /// Place every mass at `x_m` (links relaxed, at the centre of any dead band).
-    pub fn set_position(&mut self, x_m: f64) {
+    /// Place every mass at `x_m`, links relaxed; the drive side of a link with a dead band
+    /// rests at `flank` × half its width from the driven side (±1: against the flank that
+    /// pushes the driven side toward ±x, touching without force; 0: the centre), and every
+    /// mass on the drive side of it moves with it.
+    pub fn set_position(&mut self, x_m: f64, flank: f64) {
         each!(self, p => {
+            let n_links = p.drive.n_mass - 1;
             for j in 0..p.drive.n_mass {
-                p.y[2 * j] = x_m;
+                // Mass j lies on the drive side of links j..n_links.
+                let offset: f64 = p.drive.params.links[j.min(n_links)..n_links]
+                    .iter()
+                    .map(|l| 0.5 * flank * l.backlash_m)
+                    .sum();
+                p.y[2 * j] = x_m + offset;
             }
         })
     }
@@ -1477,6 +1486,32 @@ mod tests {
         match p.advance(&Inputs::voltage(0.5), 0.0, 1e-3) {
             Err(SimError::NonFinite { t_s, .. }) => assert_eq!(t_s, 1e-3),
             other => panic!("expected NonFinite, got {other:?}"),
+        }
+    }
+
+    /// A plant placed with its drive side at a flank of the dead band touches that flank
+    /// without force: the link is at ±half the band, the contact force zero; every mass on
+    /// the driven side of the band is at the given position.
+    #[test]
+    fn a_plant_placed_at_a_flank_rests_on_it_without_force() {
+        let width = 12e-6;
+        let mut params = DriveParams::from_axis(&seed_axis());
+        params.n_links = 1;
+        params.links[0] = Link {
+            stiffness_n_per_m: 4e7,
+            damping_n_s_per_m: 2e3,
+            backlash_m: width,
+        };
+        for flank in [1.0, 0.0, -1.0, 0.25] {
+            let mut p = AnyDrivePlant::new(params, IntegratorOptions::default())
+                .unwrap_or_else(|e| panic!("{e}"));
+            p.set_position(2e-3, flank);
+            each!(&p, q => {
+                let y = q.y.as_slice();
+                assert_eq!(y[2], 2e-3);
+                assert!((y[0] - y[2] - 0.5 * flank * width).abs() < 1e-18);
+                assert!(q.drive.link_force(0, y).abs() < 1e-9);
+            });
         }
     }
 

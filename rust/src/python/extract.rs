@@ -386,6 +386,7 @@ pub(crate) struct PyBacklash {
     pub(crate) width_m: f64,
     pub(crate) contact_stiffness_n_per_m: f64,
     pub(crate) damping_n_s_per_m: f64,
+    pub(crate) initial_flank: Option<f64>,
 }
 
 #[derive(FromPyObject)]
@@ -596,6 +597,7 @@ impl PySystem {
                     width_m: b.width_m,
                     contact_stiffness_n_per_m: b.contact_stiffness_n_per_m,
                     damping_n_s_per_m: b.damping_n_s_per_m,
+                    initial_flank: b.initial_flank.unwrap_or(0.0),
                 }),
                 compliance: fx.compliance.as_ref().map(|c| ComplianceSpec {
                     stiffness_n_per_m: c.stiffness_n_per_m,

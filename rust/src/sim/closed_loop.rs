@@ -200,6 +200,10 @@ pub struct ExtendedConfig {
     pub integrator: IntegratorOptions,
     /// Initial position of every mass (at rest, relaxed), m, in [−10, 10].
     pub initial_position_m: f64,
+    /// Where the drive side of a dead band (backlash) rests at the start, in [−1, 1]:
+    /// ±1 against the flank that pushes the table toward ±x, 0 the centre (without a dead
+    /// band it has no effect).
+    pub initial_flank: f64,
 }
 
 impl ExtendedConfig {
@@ -219,6 +223,7 @@ impl ExtendedConfig {
             seed: 0,
             integrator: cfg.integrator,
             initial_position_m: 0.0,
+            initial_flank: 0.0,
         }
     }
 
@@ -264,6 +269,7 @@ impl ExtendedConfig {
             s.validate().map_err(|e| e.within("stochastic"))?;
         }
         check_range("initial_position_m", self.initial_position_m, -10.0, 10.0)?;
+        check_range("initial_flank", self.initial_flank, -1.0, 1.0)?;
         self.integrator
             .validate()
             .map_err(|e| e.within("integrator"))
@@ -401,7 +407,7 @@ fn run_loop(
         level,
         cfg.integrator,
     )?;
-    plant.set_position(cfg.initial_position_m);
+    plant.set_position(cfg.initial_position_m, cfg.initial_flank);
     let t_s = cfg.sample_period_s();
     let latency_s = match &cfg.controller {
         ControllerKind::Fpga { pid, .. } => pid.latency_ticks as f64 / pid.clock_hz,

@@ -235,6 +235,10 @@ pub struct BacklashSpec {
     pub contact_stiffness_n_per_m: f64,
     /// Contact damping, N·s/m.
     pub damping_n_s_per_m: f64,
+    /// Where the drive side rests in the dead band at the start, in [−1, 1]: +1 against the
+    /// flank that pushes the table toward +x (the last move was positive), −1 against the
+    /// other, 0 the centre.
+    pub initial_flank: f64,
 }
 
 /// Drive-train compliance.
@@ -462,6 +466,7 @@ pub fn build_system(
         seed,
         integrator: sys.integrator,
         initial_position_m,
+        initial_flank: fx.backlash.as_ref().map_or(0.0, |b| b.initial_flank),
     };
     cfg.validate()?;
     Ok(cfg)

@@ -71,7 +71,8 @@ pub fn run_open_loop_polled(
 }
 
 /// Drive the component plant of `cfg` alone: `voltage_v[k]` (actuator command) and
-/// `force_n[k]` (empty: none) held on `[k·T, (k+1)·T)`. Starts at rest.
+/// `force_n[k]` (empty: none) held on `[k·T, (k+1)·T)`. Starts at rest at 0, the drive
+/// side of a dead band at `cfg.initial_flank`.
 pub fn run_drive_open_loop(
     cfg: &ExtendedConfig,
     voltage_v: &[f64],
@@ -96,6 +97,7 @@ pub fn run_drive_open_loop_polled(
     check_series("voltage_v", voltage_v, n)?;
     check_series("force_n", force_n, n)?;
     let mut plant = AnyPlant::component(&cfg.drive, cfg.integrator)?;
+    plant.set_position(0.0, cfg.initial_flank);
     let mut tr = DriveOpenLoopTrace::default();
     let record = |plant: &AnyPlant, t: f64, inp: &Inputs, tr: &mut DriveOpenLoopTrace| {
         let (x_t, x_m, v_t, _, f_m, f_t, stuck) = plant.observe(inp);

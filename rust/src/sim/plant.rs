@@ -41,11 +41,12 @@ impl AnyPlant {
         ))
     }
 
-    /// Place every mass at `x_m` (at rest, relaxed).
-    pub(super) fn set_position(&mut self, x_m: f64) {
+    /// Place every mass at `x_m` (at rest, relaxed), the drive side of a dead band at
+    /// `flank` (see [`AnyDrivePlant::set_position`]).
+    pub(super) fn set_position(&mut self, x_m: f64, flank: f64) {
         match self {
             Self::Rigid(p) => p.y[0] = x_m,
-            Self::Drive(p) => p.set_position(x_m),
+            Self::Drive(p) => p.set_position(x_m, flank),
         }
     }
 
