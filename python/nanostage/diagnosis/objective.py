@@ -375,7 +375,7 @@ def simulate_readings_and_commands(
             continue
         e = experiments[j]
         cost = float(np.sum(gap_residual(e.position_m, reading, e.reference_m) ** 2))
-        if cost < best[j]:
+        if out[j] is None or cost < best[j]:
             best[j], out[j] = cost, (reading, command)
     return [o for o in out if o is not None]
 
