@@ -12,7 +12,8 @@ project's 2-core machine. Run it alone: the machine is shared and the times are 
 
 ``--phases`` also prints, per case, the wall time and the simulations run (cache misses)
 of each phase: calibration (with the loop's other work), screening, refinement, refit
-control, cross-fit, report. ``--screen-fits-nominal`` screens with the free nominal
+control, cross-judging (the refitted candidates judged on every experiment), cross-fit,
+report. ``--screen-fits-nominal`` screens with the free nominal
 parameters fitted too (``DiagnosisSettings.screen_holds_nominal = False``, the earlier
 default), for a comparison on the same cases.
 
@@ -76,6 +77,9 @@ def phases() -> Iterator[dict[str, list[float]]]:
 
     def conc(items: Any, state: Any, ctx: Any, screen: bool, **k: Any) -> Any:
         phase = "screening" if screen else "refinement"
+        if now[0] == "cross-judge":  # its refits are its own phase
+            yield from real_conc(items, state, ctx, screen, **k)
+            return
         t0 = time.perf_counter()
         now[0] = phase
         try:
@@ -88,6 +92,7 @@ def phases() -> Iterator[dict[str, list[float]]]:
         patch(mod, "simulate_readings_and_commands", sim)
     patch(loop, "_concurrently", conc)
     patch(loop, "_refit_control", timed("refit control", loop._refit_control))
+    patch(loop, "_cross_judge", timed("cross-judge", loop._cross_judge))
     patch(run, "diagnose_experiments", timed("calibration", loop.diagnose_experiments))
     patch(run, "crossfit_models", timed("cross-fit", loop.crossfit_models))
     patch(run, "assemble_report", timed("report", run.assemble_report))
@@ -98,7 +103,7 @@ def phases() -> Iterator[dict[str, list[float]]]:
             setattr(mod, name, f)
         # The engine's phases ran inside the diagnosis's own time: calibration is what is
         # left of it.
-        inner = sum(out[p][0] for p in ("screening", "refinement", "refit control"))
+        inner = sum(out[p][0] for p in ("screening", "refinement", "refit control", "cross-judge"))
         out["calibration"][0] -= inner
 
 

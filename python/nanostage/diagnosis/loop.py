@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -857,7 +858,7 @@ def _concurrently(
         return
 
     def one(item: tuple[int, Candidate]) -> tuple[CandidateResult | None, Exception | None, float]:
-        return _judge_timed(item[1], now, ctx, item[0], screen)
+        return _judge_timed(item[1], now, ctx, screen)
 
     threads = max(1, min(ctx.st.parallel_candidates, len(items)))
     with ThreadPoolExecutor(max_workers=threads) as pool:
@@ -870,13 +871,12 @@ def _judge_timed(
     cand: Candidate,
     now: tuple[System, FloatArray, Sequence[float | None], FloatArray | None],
     ctx: _Ctx,
-    index: int,
     screen: bool,
 ) -> tuple[CandidateResult | None, Exception | None, float]:
     """:func:`_judge`, its error if the candidate cannot be fitted, and its seconds."""
     t0 = time.perf_counter()
     try:
-        r = _judge(cand, *now, ctx, index, screen=screen)
+        r = _judge(cand, *now, ctx, screen=screen)
     except (ValueError, RuntimeError) as exc:
         return None, exc, time.perf_counter() - t0
     return r, None, time.perf_counter() - t0
@@ -893,7 +893,7 @@ def _judge_task(
     cands, now, ctx = cloudpickle.loads(shared)
     mb = ctx.st.simulation_cache_mb
     ctx = dataclasses.replace(ctx, cache=SimulationCache(mb * 1e6) if mb > 0 else None)
-    return _judge_timed(cands[index], now, ctx, index, screen)
+    return _judge_timed(cands[index], now, ctx, screen)
 
 
 def _on_executor(
@@ -1180,6 +1180,14 @@ def _at_setting(cand: Candidate, k: int) -> Callable[[System, Sequence[float]], 
     return apply
 
 
+def candidate_seed(name: str) -> int:
+    """A candidate's seed offset (added to :attr:`DiagnosisSettings.seed` for its fits'
+    starts and scans and its bootstrap), from its name alone: a candidate is fitted and
+    judged alike whether a diagnosis has all candidates or only a few (where the gap is
+    rugged, other draws can end in another basin: docs/diagnosis.md, *Candidates*)."""
+    return zlib.crc32(name.encode("utf-8")) % 100_000
+
+
 def _judge(
     cand: Candidate,
     base: System,
@@ -1187,12 +1195,13 @@ def _judge(
     base_cmd: Sequence[float | None],
     base_units: FloatArray | None,
     ctx: _Ctx,
-    index: int,
     screen: bool = False,
 ) -> CandidateResult:
     """Fit one candidate on every fold and judge it on the validation experiments
-    (``screen``: one warm start only, for ranking)."""
+    (``screen``: one warm start only, for ranking). Its starts, scans and bootstrap are
+    seeded by :func:`candidate_seed`: the same whatever other candidates the diagnosis has."""
     st = ctx.st
+    index = candidate_seed(cand.name)
     extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
     setting: int | None = None
     hold = screen and st.screen_holds_nominal

@@ -96,8 +96,9 @@ class CandidateResult:
     significant: bool
     reasons: list[str]
     setting: int | None = None
-    #: The candidate's position in its round (seeds its bootstrap) and its parameter count
-    #: (the complexity penalty), kept so that it can be judged again against a new baseline.
+    #: The candidate's seed offset (:func:`~nanostage.diagnosis.loop.candidate_seed`: seeds
+    #: its fits and bootstrap) and its parameter count (the complexity penalty), kept so
+    #: that it can be judged again against a new baseline.
     index: int = 0
     k_params: int = 0
     #: Each validation move's share of the mean square (the bootstrap's units).
