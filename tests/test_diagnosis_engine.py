@@ -80,6 +80,7 @@ from nanostage.diagnosis.run import (
     experiment_advice,
     indistinguishable,
     model_gap,
+    selecting_results,
     ties_of_selected,
 )
 from nanostage.diagnosis.select import (
@@ -850,6 +851,12 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
     assert ev["parameters"] == best["parameters"] and ev["shrink"] == best["shrink"]
     value = best["parameters"]["asymmetric_friction.asymmetry"]["value"]
     assert "### 1. `asymmetric_friction` (round 1)" in md
+    # Its round was cross-judged and selected it by its results on every experiment: the
+    # evidence says why in those terms first, then the validation experiments' alone.
+    assert r["cross_judged"][0]["candidates"][0]["effect"] == "asymmetric_friction"
+    assert ev["why"][0].startswith("judged on every experiment: validation gaps")
+    assert any(w.startswith("on the validation experiments alone: ") for w in ev["why"])
+    assert f"- {ev['why'][0]}" in md
     assert f"| `asymmetric_friction.asymmetry` | {value:.4g} |" in md
     assert "## Experiment advice" in md and "## Forward selection" in md
     # The free nominal parameters alone and refitted with the selected effect.
@@ -1414,6 +1421,16 @@ def test_too_few_informative_experiments_are_counted_and_advised() -> None:
     assert weak_advice(pooled) == []
     # Nothing selected: nothing to advise on.
     assert not any("weak evidence" in a["issue"] for a in experiment_advice(exps, None, [r], 0.05))
+    # A round that was cross-judged selected by its results on every experiment: the advice
+    # judges those (found on fresh independent case 1180006: the report called a selection
+    # weak evidence from the two informative validation experiments, while the cross-judged
+    # result that selected it had improved all eight of its informative experiments).
+    judged = dc.replace(r, informative_experiments=8)
+    other = dc.replace(r, effect="y")
+    assert selecting_results([[other, r]], [[judged, other]], ["x"]) == [judged]
+    assert selecting_results([[other, r]], [], ["x"]) == [r]
+    assert selecting_results([[r], [other]], [[judged]], ["x", "y"]) == [judged, other]
+    assert weak_advice(selecting_results([[r]], [[judged]], ["x"])[0]) == []
 
 
 def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:

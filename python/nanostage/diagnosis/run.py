@@ -860,6 +860,22 @@ def model_gap(manifest: str | Path | Manifest, system: System) -> dict[str, Any]
     return _gap(val, sims, _lead(setup.nominal))
 
 
+def selecting_results(
+    rounds: Sequence[Sequence[CandidateResult]],
+    cross_judged: Sequence[Sequence[CandidateResult]],
+    selected: Sequence[str],
+) -> list[CandidateResult]:
+    """Each selected effect's result in the terms its round selected it by: its result
+    judged on every experiment where the round was cross-judged
+    (:attr:`DiagnosisSettings.cross_judge_folds`), else its validation result."""
+    out = []
+    for i, name in enumerate(selected):
+        pools = [cross_judged[i]] if i < len(cross_judged) else []
+        pools.append(rounds[i])
+        out.append(next(r for pool in pools for r in pool if r.effect == name))
+    return out
+
+
 def assemble_report(
     out: Mapping[str, Any],
     folds: Sequence[tuple[Sequence[Experiment], Sequence[Experiment]]],
@@ -883,11 +899,18 @@ def assemble_report(
         else None
     )
     candidates = [r.to_dict() for r in first]
+    selecting = selecting_results(rounds, out.get("cross_judged") or [], out["selected"])
     evidence = []
     previous = before
     for i, (rnd, name) in enumerate(zip(rounds, out["selected"], strict=False)):
         r = next(x for x in rnd if x.effect == name)
         ev, previous = _evidence(r, previous, val, folds, adapt, lead_m, cache)
+        if selecting[i] is not r:
+            # Selected by its results on every experiment: those say why; the validation
+            # experiments' alone follow, labelled.
+            ev["why"] = [f"judged on every experiment: {w}" for w in selecting[i].reasons] + [
+                f"on the validation experiments alone: {w}" for w in r.reasons
+            ]
         evidence.append({"round": i + 1} | ev)
     floor = float(out["floor_rms_m"])
     total_after = float(after["total_rms_m"])
@@ -955,10 +978,7 @@ def assemble_report(
                 n: float(v["sum_sq_m2"]) for n, v in before["per_experiment"].items()
             },
             ranking=st.ranking,
-            selected=[
-                next(r for r in rnd if r.effect == name)
-                for rnd, name in zip(rounds, out["selected"], strict=False)
-            ],
+            selected=selecting,
             p_value=st.p_value,
         ),
         "level_scatter": out.get("level_scatter"),
