@@ -264,8 +264,21 @@ def test_unexplained_gap_names_the_best_partial_explanations() -> None:
         "offset_force",
         "amplifier_dynamics",
     ]
+    assert {c["judged"] for c in u["partial_explanations"]} == {"validation experiments"}
     assert unexplained_gap(290e-9, 29e-9, ["offset_force"], first, st) is None
     assert unexplained_gap(40e-9, 29e-9, [], first, st) is None
+    # Round 1 cross-judged: it selected nothing by its results on every experiment, and those
+    # are the partial explanations.
+    judged = [res("amplifier_dynamics", 0.31), res("offset_force", 0.12), res("gms", 0.0)]
+    u = unexplained_gap(290e-9, 29e-9, [], first, st, judged_round=judged)
+    assert u is not None
+    assert [(c["effect"], c["shrink"], c["judged"]) for c in u["partial_explanations"]] == [
+        ("amplifier_dynamics", 0.31, "every experiment"),
+        ("offset_force", 0.12, "every experiment"),
+    ]
+    empty = unexplained_gap(290e-9, 29e-9, [], first, st, judged_round=[])
+    assert empty is not None
+    assert empty["partial_explanations"][0]["judged"] == "validation experiments"
 
 
 def test_a_free_torque_constant_carries_the_back_emf_constant(tmp_path: Path) -> None:

@@ -1032,6 +1032,21 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
     assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 | 31.5 | 0.8 |" in md
     nothing = markdown_report(report | {"selected": []})
     assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 |\n" in nothing
+    # Nothing selected above the floor: the unexplained gap with its partial explanations,
+    # each saying what it was judged on.
+    unexplained = {
+        "gap_rms_m": 2.9e-7,
+        "floor_ratio": 10.0,
+        "partial_explanations": [
+            {"effect": "offset_force", "shrink": 0.46, "why_not": [], "judged": "every experiment"}
+        ],
+    }
+    plain = markdown_report(report | {"selected": [], "unexplained": unexplained})
+    assert (
+        "- **Unexplained gap** of 290.0 nm RMS (10.0× the noise floor): no candidate explains it "
+        "by the selection rules; best partial explanations: `offset_force` (shrink 46%, judged "
+        "on every experiment)" in plain
+    )
     assert "| `dahl` | the nominal model already uses Dahl friction on the table |" in md
     # Rendered above, so not repeated among the other keys; a leftover scalar is.
     other = md.split("## Other")[1]

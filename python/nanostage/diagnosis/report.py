@@ -492,7 +492,9 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     un_gap = report.get("unexplained")
     if isinstance(un_gap, Mapping) and _num(un_gap.get("gap_rms_m")) is not None:
         parts = [
-            f"`{_md_escape(str(c.get('effect')))}` (shrink {float(c.get('shrink', 0.0)):.0%})"
+            f"`{_md_escape(str(c.get('effect')))}` (shrink {float(c.get('shrink', 0.0)):.0%}"
+            + (f", judged on {c['judged']}" if isinstance(c.get("judged"), str) else "")
+            + ")"
             for c in un_gap.get("partial_explanations") or []
             if isinstance(c, Mapping) and _num(c.get("shrink")) is not None
         ]

@@ -949,7 +949,14 @@ def assemble_report(
         "experiment_noise_floors_m": dict(out["experiment_floors_m"]),
         "kind_floors": bool(out["kind_floors"]),
         "unexplained_rms_m": math.sqrt(max(total_after**2 - floor**2, 0.0)),
-        "unexplained": unexplained_gap(before["total_rms_m"], floor, out["selected"], first, st),
+        "unexplained": unexplained_gap(
+            before["total_rms_m"],
+            floor,
+            out["selected"],
+            first,
+            st,
+            judged_round=(out.get("cross_judged") or [[]])[0],
+        ),
         "explained_fraction": _explained(before["total_rms_m"], total_after, floor),
         "forward_selection": [
             {
@@ -1062,17 +1069,28 @@ def unexplained_gap(
     first_round: Sequence[CandidateResult],
     st: DiagnosisSettings,
     top: int = 3,
+    judged_round: Sequence[CandidateResult] = (),
 ) -> dict[str, Any] | None:
     """With nothing selected while the validation gap is above
     :attr:`DiagnosisSettings.explainable_factor` noise floors: the gap, its ratio to the
     floor and the best ``top`` partial explanations (the round-1 candidates with a positive
     shrink, best first, with why each was not selected); else None. The report says so
-    plainly instead of "nothing found"."""
+    plainly instead of "nothing found".
+
+    With ``judged_round`` (round 1's refitted candidates judged on every experiment, by
+    which the round selected nothing: :attr:`DiagnosisSettings.cross_judge_folds`) the
+    partial explanations are those results (``judged``: ``"every experiment"``), else the
+    validation results of ``first_round`` (``"validation experiments"``)."""
     if selected or not before_rms_m > st.explainable_factor * floor_rms_m:
         return None
+    pool, judged = (
+        (judged_round, "every experiment")
+        if judged_round
+        else (first_round, "validation experiments")
+    )
     partial = [
-        {"effect": r.effect, "shrink": r.shrink, "why_not": r.reasons}
-        for r in first_round
+        {"effect": r.effect, "shrink": r.shrink, "why_not": r.reasons, "judged": judged}
+        for r in pool
         if r.shrink > 0.0
     ][:top]
     return {
