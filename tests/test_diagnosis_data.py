@@ -991,7 +991,19 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
                 "train_rms_after_m": 1.832e-7,
                 "validation_rms_before_m": 1.977e-7,
                 "validation_rms_after_m": 1.851e-7,
-            }
+                "validation_shrink": 0.064,
+                "adopted": True,
+            },
+            {
+                "round": 2,
+                "restarted_from": "dahl",
+                "train_rms_before_m": 2.061e-7,
+                "train_rms_after_m": 1.712e-7,
+                "validation_rms_before_m": 1.977e-7,
+                "validation_rms_after_m": 2.4e-7,
+                "validation_shrink": -0.21,
+                "adopted": False,
+            },
         ],
         "nominal_parameters": {"plant.dahl.coulomb_force_n": {"value": 28.8, "std_error": 2.37}},
         "selected_model_parameters": {
@@ -1028,7 +1040,8 @@ def test_markdown_reads_the_evidence_advice_and_selection() -> None:
     assert "samples = 1 |" in md  # a unit that repeats the name is left out
     assert "| 1 | `backlash` | `backlash` 97.7 %, `sensor_delay` 97.7 % (n.s.) |" in md
     assert "| 2 | — | `sensor_delay` -40.0 % (n.s.) |" in md
-    assert "| 2 | `lugre` | 206.1 → 183.2 | 197.7 → 185.1 |" in md
+    assert "| 2 | `lugre` | 206.1 → 183.2 | 197.7 → 185.1 | yes |" in md
+    assert "| 2 | `dahl` | 206.1 → 171.2 | 197.7 → 240.0 | no: validation worse |" in md
     assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 | 31.5 | 0.8 |" in md
     nothing = markdown_report(report | {"selected": []})
     assert "| `plant.dahl.coulomb_force_n` | 28.8 | 2.37 |\n" in nothing

@@ -1025,10 +1025,14 @@ def test_a_tie_goes_to_the_candidate_with_the_larger_occam_factor() -> None:
 
 def test_refit_control_restarts_the_model_before_from_a_candidates_free_values() -> None:
     """Refitting alone: when the model before, refitted from a significant candidate's free
-    values, fits the training data better, that fit is the new baseline; else nothing.
-    The warm starts are restored either way, and insignificant candidates are not used."""
+    values, fits the training data better and the validation data no worse, that fit is the
+    new baseline; a better-training refit that predicts validation worse is recorded, not
+    adopted. The warm starts are restored either way, and insignificant candidates are not
+    used."""
     free = [("plant.dahl.coulomb_force_n", Param(name="f", unit="N", lower=1, upper=9, initial=5))]
-    landscape = {5.0: 2e-8, 3.0: 1e-8, 7.0: 3e-8}  # training RMS of the model before at a start
+    landscape = {5.0: 2e-8, 3.0: 1e-8, 7.0: 3e-8, 2.0: 0.5e-8}  # training RMS at a start
+    # Validation RMS at a start: the 2.0 basin fits training best and validates worst.
+    validation = {5.0: 2e-8, 3.0: 1e-8, 7.0: 3e-8, 2.0: 4e-8}
 
     def fit_of(v: float) -> Fit:
         return cast(Fit, SimpleNamespace(values={free[0][0]: v}, train_rms_m=landscape[v]))
@@ -1040,13 +1044,17 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
     ) -> tuple[list[Fit], np.ndarray, list[object], list[None], np.ndarray]:
         v = ctx.warm[0][free[0][0]]
         calls.append(v)
-        return [fit_of(v)], np.array([landscape[v] ** 2]), [], [None], np.array([landscape[v] ** 2])
+        ms = np.array([validation[v] ** 2])
+        return [fit_of(v)], ms, [], [None], ms
 
     ctx = SimpleNamespace(
         st=DiagnosisSettings(refit_control_top=2),
         free=free,
         warm=[{free[0][0]: 5.0}],
         fit_and_validate=fit_and_validate,
+        validation_weights=np.ones(1),
+        n_validation=1,
+        floor=1e-9,
     )
 
     def result(name: str, v: float, significant: bool) -> CandidateResult:
@@ -1055,38 +1063,50 @@ def test_refit_control_restarts_the_model_before_from_a_candidates_free_values()
             SimpleNamespace(effect=name, fold_fits=[fit_of(v)], significant=significant),
         )
 
+    def control(results: list[CandidateResult], rnd: int = 1) -> tuple[Any, list[dict[str, Any]]]:
+        return _refit_control(cast(Any, ctx), ns.presets.seed(), results, current, ms, rnd, False)
+
     current = [fit_of(5.0)]
     ms = np.array([4e-16])
     worse = [result("a", 7.0, True), result("b", 5.0, True)]
-    assert _refit_control(cast(Any, ctx), ns.presets.seed(), worse, current, ms, 0, False) is None
+    assert control(worse, 0) == (None, [])
     assert ctx.warm == [{free[0][0]: 5.0}] and calls == [7.0, 5.0]
     calls.clear()
     mixed = [result("c", 3.0, False), result("d", 7.0, True), result("e", 3.0, True)]
-    out = _refit_control(cast(Any, ctx), ns.presets.seed(), mixed, current, ms, 1, False)
+    out, records = control(mixed)
     assert out is not None and calls == [7.0, 3.0]
-    fits, new_ms, _, units, record = out
+    fits, new_ms, _, units = out
     assert units[0] == new_ms[0]
     assert fits[0].train_rms_m == 1e-8 and new_ms[0] == pytest.approx(1e-16)
-    assert record["restarted_from"] == "e" and record["round"] == 2
+    [record] = records
+    assert record["restarted_from"] == "e" and record["round"] == 2 and record["adopted"]
     assert record["train_rms_after_m"] < record["train_rms_before_m"]
+    assert record["validation_shrink"] == pytest.approx(0.5)
     assert ctx.warm == [{free[0][0]: 5.0}]
+    # Better in training, worse in validation: recorded, not the baseline; a refit that is
+    # better in both is adopted beside it, although it trains less well.
+    out, records = control([result("p", 2.0, True)])
+    assert out is None and [r["adopted"] for r in records] == [False]
+    assert records[0]["validation_shrink"] == pytest.approx(-1.0)
+    assert records[0]["validation_rms_after_m"] > records[0]["validation_rms_before_m"]
+    out, records = control([result("p", 2.0, True), result("q", 3.0, True)])
+    assert out is not None and out[0][0].train_rms_m == 1e-8
+    assert [(r["restarted_from"], r["adopted"]) for r in records] == [("q", True), ("p", False)]
     # By default every significant candidate restarts it: the third one here finds the
     # better optimum, which the best two alone would miss.
     three = [result("f", 7.0, True), result("g", 5.0, True), result("h", 3.0, True)]
     calls.clear()
-    assert _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False) is None
+    assert control(three) == (None, [])
     assert calls == [7.0, 5.0]
     ctx.st = DiagnosisSettings()
     assert ctx.st.refit_control_top is None
     calls.clear()
-    out = _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False)
-    assert out is not None and out[4]["restarted_from"] == "h" and calls == [7.0, 5.0, 3.0]
+    out, records = control(three)
+    assert out is not None and records[0]["restarted_from"] == "h" and calls == [7.0, 5.0, 3.0]
     for off in (0, -1):
         ctx.st = DiagnosisSettings(refit_control_top=off)
         calls.clear()
-        assert (
-            _refit_control(cast(Any, ctx), ns.presets.seed(), three, current, ms, 1, False) is None
-        )
+        assert control(three) == (None, [])
         assert calls == []
 
 

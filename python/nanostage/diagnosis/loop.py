@@ -554,8 +554,9 @@ def diagnose_experiments(
         # Refitting alone: a candidate's fit moves the free nominal parameters too, and
         # may have found a better optimum of the model *without* the effect. Refit the
         # model before from each significant candidate's free values; a better
-        # training fit becomes the baseline, and every candidate is judged again.
-        better = _refit_control(
+        # training fit that predicts the validation experiments no worse becomes the
+        # baseline, and every candidate is judged again.
+        better, records = _refit_control(
             ctx,
             current,
             [r for r in results if r.effect not in held],
@@ -564,9 +565,9 @@ def diagnose_experiments(
             rnd,
             progress,
         )
+        refits += records
         if better is not None:
-            current_fits, current_ms, current_cmd, current_units, record = better
-            refits.append(record)
+            current_fits, current_ms, current_cmd, current_units = better
             ctx.warm[:] = [_free_values(f, free) for f in current_fits]
             if rnd == 0:
                 nominal_fits, base_ms = current_fits, current_ms
@@ -1118,22 +1119,30 @@ def _refit_control(
     current_ms: FloatArray,
     rnd: int,
     progress: bool,
-) -> tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None:
+) -> tuple[
+    tuple[list[Fit], FloatArray, list[float | None], FloatArray] | None, list[dict[str, Any]]
+]:
     """The model before, refitted from the free values of each of the best
-    ``refit_control_top`` significant candidates (None: all): its fits, validation mean squares,
-    command residuals and a record for the report if one of them fits the training data
-    better than ``current_fits`` (by more than 0.1 % in mean square), else None."""
+    ``refit_control_top`` significant candidates (None: all). Returns the new baseline (its
+    fits, validation mean squares, command residuals and move units) or None, and the
+    records for the report. A refit that fits the training data better than
+    ``current_fits`` (by more than 0.1 % in mean square) becomes the baseline if it does
+    not predict the validation experiments worse (:func:`judged_shrink` ≥ 0): the best in
+    training of those; a better-training refit that predicts them worse is recorded
+    (``adopted`` false) and not adopted, since every effect would be credited for taking
+    back what that baseline lost on them."""
     st = ctx.st
     if not ctx.free or (st.refit_control_top is not None and st.refit_control_top <= 0):
-        return None
+        return None, []
     saved = list(ctx.warm)
 
     def train_ms(fits: Sequence[Fit]) -> float:
         return float(np.mean([f.train_rms_m**2 for f in fits]))
 
-    best: tuple[list[Fit], FloatArray, list[float | None], FloatArray, dict[str, Any]] | None = None
     before = train_ms(current_fits)
-    best_train = before * (1.0 - 1e-3)
+    best: tuple[list[Fit], FloatArray, list[float | None], FloatArray] | None = None
+    # The best-training refit adopted, and the best-training one not adopted.
+    kept: dict[bool, dict[str, Any]] = {}
     try:
         for r in [r for r in results if r.significant][: st.refit_control_top]:
             ctx.warm[:] = [_free_values(f, ctx.free) for f in r.fold_fits]
@@ -1144,19 +1153,35 @@ def _refit_control(
                 f"{math.sqrt(t) * 1e9:.1f} nm (before {math.sqrt(before) * 1e9:.1f})",
                 progress,
             )
-            if t < best_train:
-                record = {
-                    "round": rnd + 1,
-                    "restarted_from": r.effect,
-                    "train_rms_before_m": math.sqrt(before),
-                    "train_rms_after_m": math.sqrt(t),
-                    "validation_rms_before_m": math.sqrt(float(np.mean(current_ms))),
-                    "validation_rms_after_m": math.sqrt(float(np.mean(ms))),
-                }
-                best, best_train = (fits, ms, cmd, units, record), t
+            validation_shrink = judged_shrink(ctx, current_ms, ms)
+            adopted = validation_shrink >= 0.0
+            if t >= before * (1.0 - 1e-3) or (
+                adopted in kept and t >= kept[adopted]["train_rms_after_m"] ** 2
+            ):
+                continue
+            kept[adopted] = {
+                "round": rnd + 1,
+                "restarted_from": r.effect,
+                "train_rms_before_m": math.sqrt(before),
+                "train_rms_after_m": math.sqrt(t),
+                "validation_rms_before_m": math.sqrt(float(np.mean(current_ms))),
+                "validation_rms_after_m": math.sqrt(float(np.mean(ms))),
+                "validation_shrink": validation_shrink,
+                "adopted": adopted,
+            }
+            if adopted:
+                best = (fits, ms, cmd, units)
     finally:
         ctx.warm[:] = saved
-    return best
+    if False in kept:
+        print_progress(
+            f"  round {rnd + 1} refit control from {kept[False]['restarted_from']}'s free "
+            "values fits the training data better but predicts the validation experiments "
+            f"worse (shrink {kept[False]['validation_shrink']:+.1%}): not the baseline",
+            progress,
+        )
+    records = [kept[a] for a in (True, False) if a in kept]
+    return best, records
 
 
 def _free_values(fit: Fit, free: Sequence[tuple[str, Param]]) -> dict[str, float]:
@@ -1263,6 +1288,31 @@ def _judge(
     )
 
 
+def _shrink_terms(
+    ctx: _Ctx, base_ms: FloatArray, ms: FloatArray
+) -> tuple[FloatArray, FloatArray, float, float, FloatArray, float]:
+    """The terms the rules judge a model's validation mean squares ``ms`` by against the
+    model before's ``base_ms``: each experiment's weight (its noise floor's, all 1 without
+    kind floors) and floor (m²), the floor-weighted RMS gaps before and after (m), and the
+    log ratios and geometric shrink of :func:`~.select.relative_terms`."""
+    w = ctx.validation_weights if len(base_ms) == ctx.n_validation else np.ones(len(base_ms))
+    wrms0 = math.sqrt(float(np.mean(w * base_ms)))
+    wrms1 = math.sqrt(float(np.mean(w * ms)))
+    floor_ms = ctx.floor**2 / w
+    log_ratios, geometric_shrink = relative_terms(base_ms, ms, floor_ms)
+    return w, floor_ms, wrms0, wrms1, log_ratios, geometric_shrink
+
+
+def judged_shrink(ctx: _Ctx, base_ms: FloatArray, ms: FloatArray) -> float:
+    """The validation shrink from ``base_ms`` to ``ms`` (mean squares per validation
+    experiment, m²) in the terms of :attr:`DiagnosisSettings.significance`: the geometric
+    shrink (``"relative"``) or the floor-weighted pooled one; negative: worse."""
+    _, _, wrms0, wrms1, _, geometric = _shrink_terms(ctx, base_ms, ms)
+    if ctx.st.significance == "relative":
+        return geometric
+    return 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
+
+
 def _verdict(
     name: str,
     fits: list[Fit],
@@ -1285,15 +1335,11 @@ def _verdict(
     # kind floors): in units of the overall floor, a quiet experiment's gap counts as much
     # as a loud one's relative to what noise alone gives there. The move units come
     # weighted from :meth:`_Ctx.fit_and_validate`.
-    w = ctx.validation_weights if len(base_ms) == ctx.n_validation else np.ones(len(base_ms))
+    w, floor_ms, wrms0, wrms1, log_ratios, geometric_shrink = _shrink_terms(ctx, base_ms, ms)
     rms0 = math.sqrt(float(np.mean(base_ms)))
     rms1 = math.sqrt(float(np.mean(ms)))
     shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
-    wrms0 = math.sqrt(float(np.mean(w * base_ms)))
-    wrms1 = math.sqrt(float(np.mean(w * ms)))
     weighted_shrink = 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
-    floor_ms = ctx.floor**2 / w
-    log_ratios, geometric_shrink = relative_terms(base_ms, ms, floor_ms)
     penalty = st.penalty_base + st.penalty_per_param * k_params
     weighted = bool(np.any(w != 1.0))
     wtag = " (floor-weighted)" if weighted else ""

@@ -898,8 +898,9 @@ def markdown_report(
         out.append("## Refit control\n")
         out.append(
             "The model before, refitted from a candidate's free values: where that fits "
-            "the training experiments better it became the baseline of the round (refitting "
-            "alone is not credited to an effect).\n"
+            "the training experiments better and the validation experiments no worse it "
+            "became the baseline of the round (refitting alone is not credited to an "
+            "effect); a refit that predicts the validation experiments worse did not.\n"
         )
         out.append(
             _table(
@@ -908,6 +909,7 @@ def markdown_report(
                     "restarted from",
                     "training gap [nm]",
                     "validation gap [nm]",
+                    "baseline",
                 ],
                 [
                     [
@@ -916,6 +918,7 @@ def markdown_report(
                         f"{_nm(r.get('train_rms_before_m'))} → {_nm(r.get('train_rms_after_m'))}",
                         f"{_nm(r.get('validation_rms_before_m'))} → "
                         f"{_nm(r.get('validation_rms_after_m'))}",
+                        "yes" if r.get("adopted", True) else "no: validation worse",
                     ]
                     for r in refits
                     if isinstance(r, Mapping)
