@@ -191,7 +191,9 @@ class DiagnosisSettings:
     #: a tie the gap cannot break is broken only by a clear mark. 0 turns it off.
     signature_margin: float = 9.21
     #: Significant candidates of a round whose free values restart the model before
-    #: (refitting alone), the best first; None: every significant one, ≤ 0: none. With the
+    #: (refitting alone), the best first; None: every significant one, ≤ 0: none. A refit
+    #: becomes the baseline if it fits the training experiments better and predicts the
+    #: validation experiments no worse (docs/diagnosis.md, *Refitting alone*). With the
     #: best two only (an earlier default), a third significant candidate could be
     #: selected by the tie-break without its control: on the speed bench's delay case,
     #: refitted friction models ranked ahead of the drive compliance whose free values had
