@@ -163,7 +163,13 @@ def test_command_weights_and_the_stacked_gap() -> None:
 
 def _ns_ctx(floor: float, st: DiagnosisSettings) -> Any:
     return SimpleNamespace(
-        st=st, floor=floor, n_validation=4, validation_weights=np.ones(4), weights={}
+        st=st,
+        floor=floor,
+        n_validation=4,
+        validation_weights=np.ones(4),
+        weights={},
+        family=1,
+        p_level=st.p_value,
     )
 
 

@@ -1391,11 +1391,19 @@ def _judge_one_parameter(
     floor_m: float,
     weights: np.ndarray,
     st: DiagnosisSettings,
+    family: int = 1,
 ) -> CandidateResult:
     """``_verdict`` of a one-parameter candidate with validation mean squares ``ms`` against
-    ``base_ms`` (no command channel, units: the experiments)."""
+    ``base_ms`` (no command channel, units: the experiments) among ``family`` candidates."""
     n = len(ms)
-    ctx = SimpleNamespace(st=st, floor=floor_m, n_validation=n, validation_weights=weights)
+    ctx = SimpleNamespace(
+        st=st,
+        floor=floor_m,
+        n_validation=n,
+        validation_weights=weights,
+        family=family,
+        p_level=st.p_value / family if st.multiple_testing else st.p_value,
+    )
     return _verdict(
         "x", [cast(Any, None)], ms, [None] * n, None, 1, base_ms, [None] * n, cast(Any, ctx), 0
     )
@@ -1451,6 +1459,51 @@ def test_too_few_informative_experiments_are_counted_and_advised() -> None:
     assert selecting_results([[other, r]], [], ["x"]) == [r]
     assert selecting_results([[r], [other]], [[judged]], ["x", "y"]) == [judged, other]
     assert weak_advice(selecting_results([[r]], [[judged]], ["x"])[0]) == []
+
+
+def test_a_round_judges_its_candidates_at_the_level_over_their_number() -> None:
+    """Bonferroni: a round selects the best of the candidates it judges together, so each is
+    judged at ``p_value`` over their number. A candidate that cuts nine of twelve gaps by
+    30 % and raises three by 30–50 % has bootstrap p = 0.02: significant alone or among
+    two (0.025), not among six (0.0083), and significant again with the correction off. A
+    consistent improvement (p = 0) passes among any number; the level is recorded and the
+    reason names it."""
+    base_ms = np.full(12, (100e-9) ** 2)  # 5 floors: not a large explained gap
+    factor = np.array([0.7] * 9 + [1.3, 1.4, 1.5])
+    ms = base_ms * factor**2
+    st = DiagnosisSettings()
+    assert st.multiple_testing and st.p_value == 0.05
+
+    def judged(family: int, settings: DiagnosisSettings = st, after: np.ndarray = ms) -> Any:
+        return _judge_one_parameter(after, base_ms, 20e-9, np.ones(12), settings, family)
+
+    alone = judged(1)
+    assert alone.p_value == pytest.approx(0.02) and alone.geometric_shrink > 0.1
+    assert alone.significant and alone.p_level == 0.05
+    assert judged(2).significant and judged(2).p_level == pytest.approx(0.025)
+    six = judged(6)
+    assert not six.significant and six.p_level == pytest.approx(0.05 / 6)
+    assert any("p = 0.020 ≥ 0.0083 (0.05 over 6 candidates)" in w for w in six.reasons)
+    fitted = Fit(values={}, std_errors={}, train_rms_m=0.0, n_evaluations=1, system=cast(Any, None))
+    assert dc.replace(six, fit=fitted).to_dict()["p_level"] == pytest.approx(0.05 / 6)
+    off = judged(6, dc.replace(st, multiple_testing=False))
+    assert off.significant and off.p_level == 0.05
+    consistent = judged(17, after=base_ms * 0.7**2)
+    assert consistent.significant and consistent.p_value == 0.0
+    # The engine's context: the level is p_value over its family, or p_value when off.
+    ctx = _Ctx(
+        free=[],
+        set_free=lambda s, v: s,
+        folds=[],
+        floor=20e-9,
+        st=st,
+        adapt=lambda s, e: s,
+        nominal=cast(Any, None),
+        family=7,
+    )
+    assert ctx.p_level == pytest.approx(0.05 / 7)
+    assert dc.replace(ctx, st=dc.replace(st, multiple_testing=False)).p_level == 0.05
+    assert dc.replace(ctx, family=0).p_level == 0.05
 
 
 def test_floor_rule_rejects_a_gain_on_a_gap_at_the_noise_floor() -> None:

@@ -102,6 +102,18 @@ class _Ctx:
     #: the factor its component is kept by, per experiment by name (none: every gap as it
     #: is; :mod:`~nanostage.diagnosis.scatter`).
     level_directions: Mapping[str, tuple[FloatArray, float]] = field(default_factory=dict)
+    #: How many candidates are judged together (a round's, or its cross-judging's): the
+    #: significance level is :attr:`DiagnosisSettings.p_value` over it with
+    #: :attr:`DiagnosisSettings.multiple_testing`.
+    family: int = 1
+
+    @property
+    def p_level(self) -> float:
+        """The level a candidate's bootstrap p is judged at (Bonferroni over
+        :attr:`family` with :attr:`DiagnosisSettings.multiple_testing`)."""
+        if self.st.multiple_testing:
+            return self.st.p_value / max(self.family, 1)
+        return self.st.p_value
 
     def problem(
         self,
@@ -483,6 +495,8 @@ def diagnose_experiments(
         cand_now = with_starts(cand_now, st.candidate_starts)
         if any(n in FRICTION_MODELS for n in selected):
             cand_now = [c for c in cand_now if c.name not in FRICTION_MODELS]
+        # The round judges these candidates together (the significance level's family).
+        ctx = dataclasses.replace(ctx, family=len(cand_now))
         results: list[CandidateResult] = []
 
         now = (current, current_ms, current_cmd, current_units)
@@ -1071,7 +1085,9 @@ def _cross_judge(
         ([e for i, e in enumerate(exps) if i not in out], [exps[i] for i in out]) for out in held
     ]
     base_warm = _free_values(current_fits[0], ctx.free)
-    cj = dataclasses.replace(ctx, folds=folds, warm=[dict(base_warm) for _ in folds])
+    cj = dataclasses.replace(
+        ctx, folds=folds, warm=[dict(base_warm) for _ in folds], family=len(pool)
+    )
     _, base_ms, _, base_cmd, base_units = cj.fit_and_validate(
         current, (), lambda s, v: s, 1, st.seed, local=True
     )
@@ -1331,6 +1347,10 @@ def _verdict(
     resamples validation moves (``units``/``base_units``) when both are given, else
     experiments."""
     st = ctx.st
+    alpha = ctx.p_level
+    level = f"{alpha:.2g}" + (
+        f" ({st.p_value:g} over {ctx.family} candidates)" if alpha != st.p_value else ""
+    )
     # The rules weigh each validation experiment by its own noise floor (all 1 without
     # kind floors): in units of the overall floor, a quiet experiment's gap counts as much
     # as a loud one's relative to what noise alone gives there. The move units come
@@ -1361,10 +1381,10 @@ def _verdict(
         # would hold p at 1/16 whatever the others show.
         informative: int | None = int(np.count_nonzero(log_ratios))
         p = bootstrap_p(log_ratios[log_ratios != 0.0], st.bootstrap, st.seed + 1000 + index)
-        if p >= st.p_value and not large:
+        if p >= alpha and not large:
             ok = False
             reasons.append(
-                f"bootstrap over validation experiments (log ratios): p = {p:.2f} ≥ {st.p_value}"
+                f"bootstrap over validation experiments (log ratios): p = {p:.3f} ≥ {level}"
             )
         if geometric_shrink <= penalty:
             ok = False
@@ -1384,9 +1404,9 @@ def _verdict(
             else w * d
         )
         p = bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
-        if p >= st.p_value and not large:
+        if p >= alpha and not large:
             ok = False
-            reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.2f} ≥ {st.p_value}")
+            reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.3f} ≥ {level}")
         if weighted_shrink <= penalty:
             ok = False
             reasons.append(f"shrink{wtag} {weighted_shrink:.1%} ≤ complexity penalty {penalty:.0%}")
@@ -1418,7 +1438,7 @@ def _verdict(
             f"the noise floor ({ctx.floor * 1e9:.0f} nm): nothing left to explain"
         )
     large_text = (
-        f" (≥ {st.p_value}, but the gap before is {wrms0 / ctx.floor:.0f}× the noise "
+        f" (≥ {level}, but the gap before is {wrms0 / ctx.floor:.0f}× the noise "
         f"floor and {judged:.0%} of it is removed: a large explained gap)"
     )
     pairs = [(a, b) for a, b in zip(base_cmd, cmd, strict=True) if a is not None and b is not None]
@@ -1437,7 +1457,7 @@ def _verdict(
         reasons.append(
             gap_text
             + f", bootstrap p = {p:.3f}"
-            + (large_text if p >= st.p_value else "")
+            + (large_text if p >= alpha else "")
             + ("" if command_ratio is None else f", command residual × {command_ratio:.2f}")
         )
     return CandidateResult(
@@ -1460,4 +1480,5 @@ def _verdict(
         validation_units=units,
         validation_floor_ms=floor_ms,
         informative_experiments=informative,
+        p_level=alpha,
     )

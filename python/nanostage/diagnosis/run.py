@@ -245,16 +245,18 @@ def experiment_advice(
     (``results``, best first) are judged on that experiment alone. With ``selected`` (the
     selected effects' results, each from its round), whether an effect's relative
     significance rests on too few validation experiments above their noise floors for any
-    test over them to reach ``p_value`` (:func:`~nanostage.diagnosis.select.too_few_to_test`)."""
+    test over them to reach the level it was judged at (its ``p_level``, at most ``p_value``:
+    :func:`~nanostage.diagnosis.select.too_few_to_test`)."""
     advice: list[dict[str, Any]] = []
     few = [
         r
         for r in selected
         if r.informative_experiments is not None
-        and too_few_to_test(r.informative_experiments, p_value)
-        and 0.0 < p_value < 1.0
+        and 0.0 < min(r.p_level, p_value) < 1.0
+        and too_few_to_test(r.informative_experiments, min(r.p_level, p_value))
     ]
     if few:
+        p_value = min(min(r.p_level, p_value) for r in few)
         # The fewest experiments with 2⁻ⁿ ≤ p_value.
         need = max(1, math.ceil(math.log2(1.0 / p_value)))
         advice.append(

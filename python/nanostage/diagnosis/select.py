@@ -115,6 +115,9 @@ class CandidateResult:
     informative_experiments: int | None = None
     #: Unit of each of the candidate's own parameters (``effect.param`` → unit).
     units: Mapping[str, str] = field(default_factory=dict)
+    #: The level ``p_value`` was judged at: :attr:`DiagnosisSettings.p_value`, over the
+    #: number of candidates judged together with :attr:`DiagnosisSettings.multiple_testing`.
+    p_level: float = 0.05
 
     @property
     def log_ms(self) -> FloatArray:
@@ -150,6 +153,7 @@ class CandidateResult:
             "geometric_shrink": self.geometric_shrink,
             "significant": self.significant,
             "p_value": self.p_value,
+            "p_level": self.p_level,
             "informative_validation_experiments": self.informative_experiments,
             "command_ratio": self.command_ratio,
             "parameters": {
