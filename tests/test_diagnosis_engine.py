@@ -1446,6 +1446,11 @@ def test_too_few_informative_experiments_are_counted_and_advised() -> None:
     assert "x rests on 2 validation experiment(s)" in advice["issue"]
     assert "at least 5 experiments" in advice["experiment"]
     assert weak_advice(dc.replace(r, informative_experiments=5)) == []
+    # Judged among six candidates (level 0.05/6), five experiments are too few as well: an
+    # exact test needs seven (2⁻⁷ ≤ 0.0083).
+    (among_six,) = weak_advice(dc.replace(r, informative_experiments=5, p_level=0.05 / 6))
+    assert "at least 7 experiments" in among_six["experiment"]
+    assert weak_advice(dc.replace(r, informative_experiments=7, p_level=0.05 / 6)) == []
     assert weak_advice(pooled) == []
     # Nothing selected: nothing to advise on.
     assert not any("weak evidence" in a["issue"] for a in experiment_advice(exps, None, [r], 0.05))
