@@ -1157,8 +1157,10 @@ def _refit_control(
 
     before = train_ms(current_fits)
     best: tuple[list[Fit], FloatArray, list[float | None], FloatArray] | None = None
-    # The best-training refit adopted, and the best-training one not adopted.
+    # The best-training refit adopted, and the best-training one not adopted, with their
+    # training mean squares.
     kept: dict[bool, dict[str, Any]] = {}
+    kept_train: dict[bool, float] = {}
     try:
         for r in [r for r in results if r.significant][: st.refit_control_top]:
             ctx.warm[:] = [_free_values(f, ctx.free) for f in r.fold_fits]
@@ -1171,10 +1173,9 @@ def _refit_control(
             )
             validation_shrink = judged_shrink(ctx, current_ms, ms)
             adopted = validation_shrink >= 0.0
-            if t >= before * (1.0 - 1e-3) or (
-                adopted in kept and t >= kept[adopted]["train_rms_after_m"] ** 2
-            ):
+            if t >= min(before * (1.0 - 1e-3), kept_train.get(adopted, math.inf)):
                 continue
+            kept_train[adopted] = t
             kept[adopted] = {
                 "round": rnd + 1,
                 "restarted_from": r.effect,

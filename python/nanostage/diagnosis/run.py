@@ -248,15 +248,16 @@ def experiment_advice(
     test over them to reach the level it was judged at (its ``p_level``, at most ``p_value``:
     :func:`~nanostage.diagnosis.select.too_few_to_test`)."""
     advice: list[dict[str, Any]] = []
+    level = {id(r): min(r.p_level, p_value) for r in selected}
     few = [
         r
         for r in selected
         if r.informative_experiments is not None
-        and 0.0 < min(r.p_level, p_value) < 1.0
-        and too_few_to_test(r.informative_experiments, min(r.p_level, p_value))
+        and 0.0 < level[id(r)] < 1.0
+        and too_few_to_test(r.informative_experiments, level[id(r)])
     ]
     if few:
-        p_value = min(min(r.p_level, p_value) for r in few)
+        p_value = min(level[id(r)] for r in few)
         # The fewest experiments with 2⁻ⁿ ≤ p_value.
         need = max(1, math.ceil(math.log2(1.0 / p_value)))
         advice.append(
