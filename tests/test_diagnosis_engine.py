@@ -86,6 +86,7 @@ from nanostage.diagnosis.run import (
 from nanostage.diagnosis.select import (
     CandidateResult,
     log_occam_factor,
+    null_test_p,
     pick_winner,
     rank_key,
     relative_terms,
@@ -1392,9 +1393,12 @@ def _judge_one_parameter(
     weights: np.ndarray,
     st: DiagnosisSettings,
     family: int = 1,
+    fit: Fit | None = None,
+    null_params: tuple[tuple[str, Param], ...] = (),
 ) -> CandidateResult:
     """``_verdict`` of a one-parameter candidate with validation mean squares ``ms`` against
-    ``base_ms`` (no command channel, units: the experiments) among ``family`` candidates."""
+    ``base_ms`` (no command channel, units: the experiments) among ``family`` candidates,
+    fitted as ``fit`` with the parameters ``null_params`` that have a null value."""
     n = len(ms)
     ctx = SimpleNamespace(
         st=st,
@@ -1405,8 +1409,141 @@ def _judge_one_parameter(
         p_level=st.p_value / family if st.multiple_testing else st.p_value,
     )
     return _verdict(
-        "x", [cast(Any, None)], ms, [None] * n, None, 1, base_ms, [None] * n, cast(Any, ctx), 0
+        "x",
+        [cast(Any, fit)],
+        ms,
+        [None] * n,
+        None,
+        1,
+        base_ms,
+        [None] * n,
+        cast(Any, ctx),
+        0,
+        null_params=null_params,
     )
+
+
+def _offset_fit(value_n: float, std_error_n: float, span_n: float = 20.0) -> Fit:
+    """A fit of a free nominal parameter and an offset force (bounds ±span/2, null 0) of
+    ``value_n`` ± ``std_error_n``, the two correlated by 0.5, in normalised coordinates."""
+    su = std_error_n / span_n
+    cov = np.array([[1e-4, 0.5 * 1e-2 * su], [0.5 * 1e-2 * su, su**2]])
+    return Fit(
+        values={"nominal.mass_kg": 1.0, "x.external_force_n": value_n},
+        std_errors={"nominal.mass_kg": 0.1, "x.external_force_n": std_error_n},
+        train_rms_m=0.0,
+        n_evaluations=1,
+        system=cast(Any, None),
+        unit_covariance=cov,
+    )
+
+
+_OFFSET = Param(name="external_force_n", unit="N", lower=-10.0, upper=10.0, initial=0.0, null=0.0)
+
+
+def test_null_test_by_hand() -> None:
+    """The Wald test of a candidate's parameters against their nulls, by hand: one
+    parameter at 1.5 standard errors from 0 gives W = 2.25 and p = 2(1 − Φ(1.5)) = 0.1336;
+    the free nominal parameter's correlation does not enter the marginal test. Two
+    parameters each one standard error from 0 and correlated by 0.5 give W = δᵀΣ⁻¹δ = 2/1.5
+    and p = exp(−W/2) (χ² with 2 degrees of freedom). A parameter the data leave
+    unconstrained (variance 0) says nothing: with only it, p = 1. No parameter with a null:
+    no test (None); a null on a log parameter or outside the bounds is refused."""
+    p = null_test_p(_offset_fit(0.12, 0.08), [("x.external_force_n", _OFFSET)])
+    assert p == pytest.approx(0.133614, abs=1e-6)
+    assert null_test_p(_offset_fit(-0.6, 0.08), [("x.external_force_n", _OFFSET)]) < 1e-12
+    a = Param(name="a", unit="-", lower=-1.0, upper=1.0, initial=0.0, null=0.0)
+    b = Param(name="b", unit="-", lower=-1.0, upper=3.0, initial=0.0, null=1.0)
+    s = 0.01
+    two = Fit(
+        values={"y.a": -1.0 + 2 * (0.5 + s), "y.b": -1.0 + 4 * (0.5 + s)},
+        std_errors={},
+        train_rms_m=0.0,
+        n_evaluations=1,
+        system=cast(Any, None),
+        unit_covariance=np.array([[s**2, 0.5 * s**2], [0.5 * s**2, s**2]]),
+    )
+    got = null_test_p(two, [("y.a", a), ("y.b", b)])
+    assert got == pytest.approx(math.exp(-0.5 * 2.0 / 1.5), rel=1e-9)
+    loose = dc.replace(two, unit_covariance=np.array([[0.0, 0.0], [0.0, s**2]]))
+    assert null_test_p(loose, [("y.a", a)]) == 1.0
+    assert null_test_p(loose, [("y.a", a), ("y.b", b)]) == pytest.approx(math.erfc(1 / 2**0.5))
+    assert null_test_p(two, [("y.a", dc.replace(a, null=None))]) is None
+    assert null_test_p(dc.replace(two, unit_covariance=np.zeros((0, 0))), [("y.a", a)]) is None
+    with pytest.raises(ValueError, match=r"null = 1\.0 is invalid"):
+        Param(name="w", unit="m", lower=0.1, upper=10.0, initial=1.0, log=True, null=1.0)
+    with pytest.raises(ValueError, match=r"null = 2\.0 is invalid"):
+        Param(name="c", unit="-", lower=-1.0, upper=1.0, initial=0.0, null=2.0)
+
+
+def test_an_effect_whose_fitted_size_does_not_differ_from_none_is_not_named() -> None:
+    """A consistent held-out improvement (p = 0) by an offset of 0.12 ± 0.08 N: the gap
+    test passes, the Wald test against 0 N does not (p = 0.13), so the candidate is not
+    significant and the reason gives the size. The same improvement by 0.12 ± 0.01 N is
+    significant, and so is the first with the rule off, or where the explained gap is
+    large (the large-explained-gap rule overrides it, as it does the bootstrap)."""
+    base_ms = np.full(12, (100e-9) ** 2)  # 5 floors: not a large gap
+    ms = base_ms * 0.7**2
+    st = DiagnosisSettings()
+    assert st.null_test
+    nulls = (("x.external_force_n", _OFFSET),)
+
+    def judged(
+        fit: Fit, settings: DiagnosisSettings = st, base: np.ndarray = base_ms, cut: float = 0.7
+    ) -> Any:
+        after = base * cut**2
+        return _judge_one_parameter(after, base, 20e-9, np.ones(12), settings, 1, fit, nulls)
+
+    weak = judged(_offset_fit(0.12, 0.08))
+    assert weak.p_value == 0.0 and not weak.significant
+    assert weak.null_p_value == pytest.approx(0.1336, abs=1e-4)
+    assert any(
+        "does not differ from none (external_force_n = 0.12 ± 0.08 N (none: 0))" in w
+        and "Wald p = 0.134 ≥ 0.05" in w
+        for w in weak.reasons
+    )
+    assert weak.to_dict()["null_p_value"] == pytest.approx(0.1336, abs=1e-4)
+    strong = judged(_offset_fit(0.12, 0.01))
+    assert strong.significant and strong.null_p_value < 1e-12
+    assert judged(_offset_fit(0.12, 0.08), dc.replace(st, null_test=False)).significant
+    # 100 floors before, 70 % removed: a large explained gap.
+    large = judged(_offset_fit(0.12, 0.08), st, np.full(12, (2000e-9) ** 2), 0.3)
+    assert large.significant and large.null_p_value == pytest.approx(0.1336, abs=1e-4)
+    # Without parameters that have a null (a log-scaled size), no test and no reason.
+    plain = _judge_one_parameter(ms, base_ms, 20e-9, np.ones(12), st, 1, _offset_fit(0.1, 1.0))
+    assert plain.significant and plain.null_p_value is None
+
+
+@pytest.mark.parametrize("preset", ["seed", "emps"])
+def test_a_candidate_at_its_nulls_is_the_nominal_model(preset: str) -> None:
+    """The null values are where the effect is absent: every candidate whose parameters all
+    have one, applied at them, moves as the nominal model (a move out and back): the same
+    encoder counts and command bit for bit, the position within 1 nm (a zero-amplitude
+    friction term still takes the integrator through other roundings). A tenth of the range
+    below one of them (a lower voltage limit: a higher one changes nothing until the move
+    reaches it), the position differs by more than 10 nm."""
+    nominal = ns.presets.seed(1e-3) if preset == "seed" else ns.presets.emps()
+    period = nominal.controller.sample_period_s
+    n = round(0.3 / period)
+    ref = np.where(np.arange(n) < n // 2, 2e-4 if preset == "seed" else 2e-2, 0.0)
+    ref[: n // 10] = 0.0
+    tested = 0
+    before = ns.simulate(nominal, ref)
+    for c in applicable_candidates(nominal)[0]:
+        if not c.params or any(p.null is None for p in c.params):
+            continue
+        tested += 1
+        nulls = [float(p.null) for p in c.params if p.null is not None]
+        at = ns.simulate(c.apply(nominal, nulls), ref)
+        np.testing.assert_array_equal(at.encoder_counts, before.encoder_counts, err_msg=c.name)
+        np.testing.assert_array_equal(at.command, before.command, err_msg=c.name)
+        np.testing.assert_allclose(at.position_m, before.position_m, rtol=0, atol=1e-9)
+        p0 = c.params[0]
+        u0 = p0.to_unit(nulls[0])
+        moved = [p0.from_unit(u0 + (0.1 if u0 < 0.1 else -0.1)), *nulls[1:]]
+        away = ns.simulate(c.apply(nominal, moved), ref)
+        assert float(np.max(np.abs(away.position_m - before.position_m))) > 1e-8, c.name
+    assert tested >= 4
 
 
 def test_too_few_informative_experiments_are_counted_and_advised() -> None:

@@ -49,6 +49,18 @@ class Param:
     log: bool = False
     #: What the parameter is (for tables), empty if the name says it.
     description: str = ""
+    #: The value at which the effect the parameter sizes is absent (an offset of 0 N, an
+    #: asymmetry of 0, the nominal voltage limit), for the test that a fitted effect differs
+    #: from none; None where no such value lies inside a linear range (a log-scaled size,
+    #: whose absence lies beyond its lower bound, or a parameter of a friction law).
+    null: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.null is not None and (self.log or not self.lower <= self.null <= self.upper):
+            raise ValueError(
+                f"Param {self.name}: null = {self.null} is invalid: expected a linear "
+                f"parameter with its null within [{self.lower}, {self.upper}]"
+            )
 
     def to_unit(self, value: float) -> float:
         """Physical value → normalised coordinate in [0, 1]."""

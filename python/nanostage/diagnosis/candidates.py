@@ -126,6 +126,40 @@ def _with_table_asymmetry(system: System, asymmetry: float) -> System:
     return system
 
 
+def _static_value(system: System, name: str) -> float:
+    """The modifier ``name`` of the static map where stiction acts, as
+    :func:`_modify_static` would set it (0 where it sets nothing)."""
+    tf = system.effects.table_friction
+    if isinstance(tf, StaticFrictionMap):
+        return float(getattr(tf, name))
+    p = system.plant
+    if isinstance(p, Plant):
+        return (
+            0.0
+            if name == "viscous_asymmetry"
+            else float(getattr(system.effects.motor_friction, name))
+        )
+    return float(getattr(p.friction, name))
+
+
+def _table_asymmetry(system: System) -> float:
+    """The direction asymmetry of the table law :func:`_with_table_asymmetry` sets (0 where
+    it sets none)."""
+    tf = system.effects.table_friction
+    if isinstance(tf, LuGre | Gms):
+        return tf.asymmetry
+    p = system.plant
+    if tf is None and isinstance(p, Plant):
+        return p.dahl.asymmetry
+    return 0.0
+
+
+def _null(value: float, lower: float, upper: float) -> float | None:
+    """``value`` as a parameter's null (:attr:`Param.null`: the model's own value, where the
+    candidate adds nothing) if it lies within the bounds, else None (no test)."""
+    return value if lower <= value <= upper else None
+
+
 def _with_plant(system: System, change: Callable[[Any], Any]) -> System:
     """``system`` with ``change`` applied to *its own* plant. A candidate's ``apply`` must
     start from the system it is given (which carries the fitted free parameters), never from
@@ -314,8 +348,22 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             return Candidate(
                 name="asymmetric_friction",
                 params=(
-                    Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
-                    Param(name="viscous_asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
+                    Param(
+                        name="asymmetry",
+                        unit="-",
+                        lower=-0.6,
+                        upper=0.6,
+                        initial=0.0,
+                        null=_null(_static_value(sys, "asymmetry"), -0.6, 0.6),
+                    ),
+                    Param(
+                        name="viscous_asymmetry",
+                        unit="-",
+                        lower=-0.6,
+                        upper=0.6,
+                        initial=0.0,
+                        null=_null(_static_value(sys, "viscous_asymmetry"), -0.6, 0.6),
+                    ),
                 ),
                 apply=lambda s, v: _modify_static(s, asymmetry=v[0], viscous_asymmetry=v[1]),
                 signature=signature,
@@ -328,8 +376,22 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         return Candidate(
             name="asymmetric_friction",
             params=(
-                Param(name="asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
-                Param(name="table_asymmetry", unit="-", lower=-0.6, upper=0.6, initial=0.0),
+                Param(
+                    name="asymmetry",
+                    unit="-",
+                    lower=-0.6,
+                    upper=0.6,
+                    initial=0.0,
+                    null=_null(_static_value(sys, "asymmetry"), -0.6, 0.6),
+                ),
+                Param(
+                    name="table_asymmetry",
+                    unit="-",
+                    lower=-0.6,
+                    upper=0.6,
+                    initial=0.0,
+                    null=_null(_table_asymmetry(sys), -0.6, 0.6),
+                ),
             ),
             apply=lambda s, v: _with_table_asymmetry(_modify_static(s, asymmetry=v[0]), v[1]),
             signature=signature,
@@ -387,8 +449,12 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         return Candidate(
             name="lead_periodic_friction",
             params=(
-                Param(name="cos_amplitude", unit="-", lower=-0.4, upper=0.4, initial=0.05),
-                Param(name="sin_amplitude", unit="-", lower=-0.4, upper=0.4, initial=0.05),
+                Param(
+                    name="cos_amplitude", unit="-", lower=-0.4, upper=0.4, initial=0.05, null=0.0
+                ),
+                Param(
+                    name="sin_amplitude", unit="-", lower=-0.4, upper=0.4, initial=0.05, null=0.0
+                ),
             ),
             apply=lambda s, v: _add_position_term(
                 s,
@@ -411,6 +477,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                         lower=-0.15,
                         upper=0.15,
                         initial=0.02,
+                        null=0.0,
                     )
                 )
 
@@ -539,6 +606,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
                         lower=0.3 * lim,
                         upper=2 * lim,
                         initial=lim,
+                        null=lim,
                     ),
                 ),
                 apply=lambda s, v: replace(
@@ -551,7 +619,14 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         return Candidate(
             name="voltage_saturation",
             params=(
-                Param(name="saturation_v", unit="V", lower=0.3 * lim, upper=2 * lim, initial=lim),
+                Param(
+                    name="saturation_v",
+                    unit="V",
+                    lower=0.3 * lim,
+                    upper=2 * lim,
+                    initial=lim,
+                    null=lim,
+                ),
             ),
             apply=lambda s, v: replace(s, controller=replace(ctl, saturation_v=v[0])),
             signature="the command limit: the slope of the response while saturated",
@@ -606,7 +681,14 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             return Candidate(
                 name="offset_force",
                 params=(
-                    Param(name="external_force_n", unit="N", lower=-fc, upper=fc, initial=0.0),
+                    Param(
+                        name="external_force_n",
+                        unit="N",
+                        lower=-fc,
+                        upper=fc,
+                        initial=0.0,
+                        null=_null(p.table.external_force_n, -fc, fc),
+                    ),
                 ),
                 apply=lambda s, v: _with_plant(
                     s, lambda q: replace(q, table=replace(q.table, external_force_n=v[0]))
@@ -616,7 +698,16 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             )
         return Candidate(
             name="offset_force",
-            params=(Param(name="external_force_n", unit="N", lower=-fc, upper=fc, initial=0.0),),
+            params=(
+                Param(
+                    name="external_force_n",
+                    unit="N",
+                    lower=-fc,
+                    upper=fc,
+                    initial=0.0,
+                    null=_null(p.external_force_n, -fc, fc),
+                ),
+            ),
             apply=lambda s, v: _with_plant(s, lambda q: replace(q, external_force_n=v[0])),
             signature="a constant force along the axis: + and − moves differ by a constant force",
         )

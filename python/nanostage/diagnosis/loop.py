@@ -35,6 +35,7 @@ from .select import (
     CandidateResult,
     bootstrap_p,
     log_occam_factor,
+    null_test_p,
     pick_winner,
     rank_key,
     relative_terms,
@@ -602,6 +603,7 @@ def diagnose_experiments(
                         r.index,
                         r.validation_units,
                         current_units,
+                        r.null_params,
                     ),
                     log_occam=r.log_occam,
                     units=r.units,
@@ -1119,6 +1121,7 @@ def _cross_judge(
             r.index,
             units,
             base_units,
+            _null_params(cand),
         )
         return dataclasses.replace(v, log_occam=r.log_occam, units=r.units)
 
@@ -1297,12 +1300,18 @@ def _judge(
         index,
         units,
         base_units,
+        _null_params(cand),
     )
     return dataclasses.replace(
         result,
         log_occam=log_occam_factor(fits[0], [n for n, _ in extra], len(cand.discrete)),
         units={n: p.unit for n, p in extra},
     )
+
+
+def _null_params(cand: Candidate) -> tuple[tuple[str, Param], ...]:
+    """The candidate's parameters that have a null value, by their names in a fit."""
+    return tuple((f"{cand.name}.{p.name}", p) for p in cand.params if p.null is not None)
 
 
 def _shrink_terms(
@@ -1343,10 +1352,12 @@ def _verdict(
     index: int,
     units: FloatArray | None = None,
     base_units: FloatArray | None = None,
+    null_params: Sequence[tuple[str, Param]] = (),
 ) -> CandidateResult:
     """Judge fitted candidate results against the model before (``base_ms``). The bootstrap
     resamples validation moves (``units``/``base_units``) when both are given, else
-    experiments."""
+    experiments. ``null_params``: the candidate's parameters that have a null value, for
+    :attr:`DiagnosisSettings.null_test`."""
     st = ctx.st
     alpha = ctx.p_level
     level = f"{alpha:.2g}" + (
@@ -1432,6 +1443,18 @@ def _verdict(
                 f"{st.friction_model_share:.0%}: a partial fit of the nominal law's form "
                 "error, which every other law also leaves"
             )
+    null_p = null_test_p(fits[0], null_params)
+    if st.null_test and null_p is not None and null_p >= st.p_value and not large:
+        ok = False
+        sizes = ", ".join(
+            f"{n.split('.', 1)[1]} = {_with_se(fits[0], n)} {p.unit} (none: {p.null:g})"
+            for n, p in null_params
+            if n in fits[0].values
+        )
+        reasons.append(
+            f"the fitted size does not differ from none ({sizes}): Wald p = {null_p:.3f} ≥ "
+            f"{st.p_value:g}"
+        )
     if wrms0 <= st.explainable_factor * ctx.floor:
         ok = False
         reasons.append(
@@ -1482,4 +1505,13 @@ def _verdict(
         validation_floor_ms=floor_ms,
         informative_experiments=informative,
         p_level=alpha,
+        null_params=tuple(null_params),
+        null_p_value=null_p,
     )
+
+
+def _with_se(fit: Fit, name: str) -> str:
+    """A fitted value with its standard error (where finite), 3 significant digits."""
+    v = fit.values[name]
+    se = fit.std_errors.get(name)
+    return f"{v:.3g} ± {se:.2g}" if se is not None and math.isfinite(se) else f"{v:.3g}"

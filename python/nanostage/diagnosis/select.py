@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ..fitting import simplest_of_ties
+from ..fitting import Param, simplest_of_ties
 from .fit import Fit
 from .settings import RANKINGS, SIGNIFICANCES, DiagnosisSettings, FloatArray
 
@@ -63,6 +63,7 @@ __all__ = [
     "bootstrap_p",
     "indistinguishable",
     "log_occam_factor",
+    "null_test_p",
     "pick_winner",
     "relative_terms",
     "significance_mode",
@@ -118,6 +119,11 @@ class CandidateResult:
     #: The level ``p_value`` was judged at: :attr:`DiagnosisSettings.p_value`, over the
     #: number of candidates judged together with :attr:`DiagnosisSettings.multiple_testing`.
     p_level: float = 0.05
+    #: The candidate's parameters that have a null value (``effect.param``, parameter),
+    #: and the p of the Wald test of ``fit`` against them (:func:`null_test_p`; None: no
+    #: such parameter, or no covariance).
+    null_params: tuple[tuple[str, Param], ...] = ()
+    null_p_value: float | None = None
 
     @property
     def log_ms(self) -> FloatArray:
@@ -154,6 +160,7 @@ class CandidateResult:
             "significant": self.significant,
             "p_value": self.p_value,
             "p_level": self.p_level,
+            "null_p_value": self.null_p_value,
             "informative_validation_experiments": self.informative_experiments,
             "command_ratio": self.command_ratio,
             "parameters": {
@@ -297,6 +304,41 @@ def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> flo
         if v > tiny:
             out += 0.5 * math.log(min(1.0, 2.0 * math.pi * float(v)))
     return out
+
+
+def null_test_p(fit: Fit, params: Sequence[tuple[str, Param]]) -> float | None:
+    """The p of the Wald test that the fitted values of ``params`` (``fit.values`` names and
+    their parameters, each with a :attr:`~nanostage.fitting.Param.null`) differ jointly
+    from their nulls: W = δᵀ Σ⁺ δ, with δ the differences and Σ their covariance in the
+    fit's normalised coordinates (:attr:`Fit.unit_covariance`, which holds the free nominal
+    parameters' correlations), against χ² with rank(Σ) degrees of freedom. A parameter the
+    data do not constrain (variance 0 from the pseudo-inverse, or not finite) says nothing
+    and is left out; left with none, p = 1. None when no parameter has a null, or the fit
+    has no covariance (no test)."""
+    from scipy.stats import chi2
+
+    if not any(p.null is not None for _, p in params):
+        return None
+    fitted = list(fit.values)
+    cov = fit.unit_covariance
+    tested = [(n, p) for n, p in params if p.null is not None and n in fit.values]
+    if not tested or cov.shape != (len(fitted), len(fitted)):
+        return None
+    idx = [fitted.index(n) for n, _ in tested]
+    delta = np.array([p.to_unit(fit.values[n]) - p.to_unit(p.null) for n, p in tested])  # type: ignore[arg-type]
+    sub = cov[np.ix_(idx, idx)]
+    keep = [
+        i
+        for i in range(len(idx))
+        if sub[i, i] > 0.0 and bool(np.all(np.isfinite(sub[i])) and np.all(np.isfinite(sub[:, i])))
+    ]
+    if not keep:
+        return 1.0
+    sub = sub[np.ix_(keep, keep)]
+    d = delta[keep]
+    rank = int(np.linalg.matrix_rank(sub, hermitian=True))
+    w = float(d @ np.linalg.pinv(sub, hermitian=True) @ d)
+    return float(chi2.sf(w, rank))
 
 
 def pick_winner(

@@ -62,6 +62,14 @@ class DiagnosisSettings:
     #: effects' p of the kept fresh-seed reports before this rule: every correct first
     #: selection 0 (of 400 resamples); every false alarm 0.010–0.033 among 5–7 candidates.
     multiple_testing: bool = True
+    #: A candidate is significant only if its fitted size differs from none: the Wald test
+    #: of its parameters that have a null value (:attr:`~nanostage.fitting.Param.null`: an
+    #: offset, an asymmetry, a harmonic amplitude, a voltage limit) against that value, by
+    #: the first fold's covariance, gives p < ``p_value`` (unless the gap explained is
+    #: large). The gap test asks whether the candidate predicts better; this one whether
+    #: the effect it names is there: a form error of the nominal model that a small offset
+    #: partly takes up can pass the first with an offset whose confidence interval holds 0.
+    null_test: bool = True
     penalty_base: float = 0.03
     penalty_per_param: float = 0.02
     floor_factor: float = 1.5
