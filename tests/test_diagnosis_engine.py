@@ -1514,18 +1514,32 @@ def test_an_effect_whose_fitted_size_does_not_differ_from_none_is_not_named() ->
     assert plain.significant and plain.null_p_value is None
 
 
-@pytest.mark.parametrize("preset", ["seed", "emps"])
+@pytest.mark.parametrize("preset", ["seed", "seed_biased", "emps"])
 def test_a_candidate_at_its_nulls_is_the_nominal_model(preset: str) -> None:
     """The null values are where the effect is absent: every candidate whose parameters all
     have one, applied at them, moves as the nominal model (a move out and back): the same
     encoder counts and command bit for bit, the position within 1 nm (a zero-amplitude
     friction term still takes the integrator through other roundings). A tenth of the range
     below one of them (a lower voltage limit: a higher one changes nothing until the move
-    reaches it), the position differs by more than 10 nm."""
-    nominal = ns.presets.seed(1e-3) if preset == "seed" else ns.presets.emps()
+    reaches it), the position differs by more than 10 nm. The nulls are the model's own
+    values: the EMPS model's offset of −3.2 N, and a seed model given an offset and both
+    asymmetries."""
+    nominal = ns.presets.emps() if preset == "emps" else ns.presets.seed(1e-3)
+    if preset == "seed_biased":
+        nominal = replace_paths(
+            nominal,
+            {
+                "plant.table.external_force_n": 1.5,
+                "plant.dahl.asymmetry": 0.05,
+                "effects.motor_friction.asymmetry": -0.1,
+            },
+        )
+        cands = {c.name: c for c in applicable_candidates(nominal)[0]}
+        assert cands["offset_force"].params[0].null == 1.5
+        assert [p.null for p in cands["asymmetric_friction"].params] == [-0.1, 0.05]
     period = nominal.controller.sample_period_s
     n = round(0.3 / period)
-    ref = np.where(np.arange(n) < n // 2, 2e-4 if preset == "seed" else 2e-2, 0.0)
+    ref = np.where(np.arange(n) < n // 2, 2e-2 if preset == "emps" else 2e-4, 0.0)
     ref[: n // 10] = 0.0
     tested = 0
     before = ns.simulate(nominal, ref)
