@@ -2226,6 +2226,45 @@ def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
     assert "## Judged on every experiment" not in markdown_report(off.report)
 
 
+def test_a_cross_judged_tie_is_broken_on_the_rounds_own_fits(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the cross-judged candidates tie, the signature tie-break simulates the round's
+    own fits (the ones the report's signature table shows), not the cross-judging folds'
+    local refits, which leave out some experiments."""
+    import nanostage.diagnosis.loop as lp
+    from nanostage.diagnosis.signatures import SignatureJudge
+
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    real = lp._cross_judge
+    fold_systems: list[int] = []
+    round_systems: list[int] = []
+
+    def all_tied(ctx: Any, current: Any, fits: Any, pool: Any) -> list[CandidateResult]:
+        round_systems.extend(id(r.fit.system) for _, r in pool)
+        out = real(ctx, current, fits, pool)
+        fold_systems.extend(id(r.fit.system) for r in out)
+        first = out[0]
+        # Every candidate significant and as good as the first: a tie of all.
+        return [dc.replace(r, significant=True, validation_ms=first.validation_ms) for r in out]
+
+    seen: list[list[int]] = []
+    real_tie = SignatureJudge.tie_chi_squares
+
+    def record(self: SignatureJudge, systems: Any) -> list[tuple[float, int]]:
+        seen.append([id(x) for x in systems])
+        return real_tie(self, systems)
+
+    monkeypatch.setattr(lp, "_cross_judge", all_tied)
+    monkeypatch.setattr(SignatureJudge, "tie_chi_squares", record)
+    st = dc.replace(FAST, cross_judge_folds=2, crossfit_folds=0, forward_rounds=1)
+    d = diagnose(m, None, settings=st, progress=False)
+    # The last tie-break is the cross-judged one (the round's own pick may break one first).
+    assert d.report["selected"] and seen and len(seen[-1]) >= 2
+    assert set(seen[-1]) <= set(round_systems)
+    assert not set(seen[-1]) & set(fold_systems)
+
+
 def test_the_round_selects_by_the_cross_judged_results(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

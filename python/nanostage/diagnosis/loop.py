@@ -641,7 +641,18 @@ def diagnose_experiments(
             )
             judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
             cross_judged.append(judged)
-            pick = pick_winner(judged, st, signature_chi_squares, st.signature_margin)
+            # A tie among the cross-judged candidates is broken on the signatures of the
+            # round's own fits (all starts, the training experiments; the fits the report's
+            # signature table shows), not on a fold's local refit: that fold leaves out a
+            # third of the experiments, possibly those that show the effect, so its fit
+            # may have drifted away from it.
+            own = {r.effect: r for r in results}
+            pick = pick_winner(
+                judged,
+                st,
+                lambda tied: signature_chi_squares([own.get(r.effect, r) for r in tied]),
+                st.signature_margin,
+            )
             best = None if pick is None else next(r for r in results if r.effect == pick.effect)
             if pick is not None:
                 print_progress(
