@@ -650,7 +650,7 @@ def diagnose_experiments(
             pick = pick_winner(
                 judged,
                 st,
-                lambda tied: signature_chi_squares([own.get(r.effect, r) for r in tied]),
+                lambda tied, own=own: signature_chi_squares([own.get(r.effect, r) for r in tied]),
                 st.signature_margin,
             )
             best = None if pick is None else next(r for r in results if r.effect == pick.effect)
