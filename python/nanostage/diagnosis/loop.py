@@ -647,12 +647,13 @@ def diagnose_experiments(
             # third of the experiments, possibly those that show the effect, so its fit
             # may have drifted away from it.
             own = {r.effect: r for r in results}
-            pick = pick_winner(
-                judged,
-                st,
-                lambda tied, own=own: signature_chi_squares([own.get(r.effect, r) for r in tied]),
-                st.signature_margin,
-            )
+
+            def on_own_fits(
+                tied: Sequence[CandidateResult], own: Mapping[str, CandidateResult] = own
+            ) -> list[tuple[float, int]]:
+                return signature_chi_squares([own.get(r.effect, r) for r in tied])
+
+            pick = pick_winner(judged, st, on_own_fits, st.signature_margin)
             best = None if pick is None else next(r for r in results if r.effect == pick.effect)
             if pick is not None:
                 print_progress(
