@@ -160,6 +160,13 @@ def _null(value: float, lower: float, upper: float) -> float | None:
     return value if lower <= value <= upper else None
 
 
+def _asymmetry_param(name: str, own: float) -> Param:
+    """A direction asymmetry in [−0.6, 0.6], from 0, whose null is the model's ``own``."""
+    return Param(
+        name=name, unit="-", lower=-0.6, upper=0.6, initial=0.0, null=_null(own, -0.6, 0.6)
+    )
+
+
 def _with_plant(system: System, change: Callable[[Any], Any]) -> System:
     """``system`` with ``change`` applied to *its own* plant. A candidate's ``apply`` must
     start from the system it is given (which carries the fitted free parameters), never from
@@ -348,22 +355,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             return Candidate(
                 name="asymmetric_friction",
                 params=(
-                    Param(
-                        name="asymmetry",
-                        unit="-",
-                        lower=-0.6,
-                        upper=0.6,
-                        initial=0.0,
-                        null=_null(_static_value(sys, "asymmetry"), -0.6, 0.6),
-                    ),
-                    Param(
-                        name="viscous_asymmetry",
-                        unit="-",
-                        lower=-0.6,
-                        upper=0.6,
-                        initial=0.0,
-                        null=_null(_static_value(sys, "viscous_asymmetry"), -0.6, 0.6),
-                    ),
+                    _asymmetry_param("asymmetry", _static_value(sys, "asymmetry")),
+                    _asymmetry_param("viscous_asymmetry", _static_value(sys, "viscous_asymmetry")),
                 ),
                 apply=lambda s, v: _modify_static(s, asymmetry=v[0], viscous_asymmetry=v[1]),
                 signature=signature,
@@ -376,22 +369,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         return Candidate(
             name="asymmetric_friction",
             params=(
-                Param(
-                    name="asymmetry",
-                    unit="-",
-                    lower=-0.6,
-                    upper=0.6,
-                    initial=0.0,
-                    null=_null(_static_value(sys, "asymmetry"), -0.6, 0.6),
-                ),
-                Param(
-                    name="table_asymmetry",
-                    unit="-",
-                    lower=-0.6,
-                    upper=0.6,
-                    initial=0.0,
-                    null=_null(_table_asymmetry(sys), -0.6, 0.6),
-                ),
+                _asymmetry_param("asymmetry", _static_value(sys, "asymmetry")),
+                _asymmetry_param("table_asymmetry", _table_asymmetry(sys)),
             ),
             apply=lambda s, v: _with_table_asymmetry(_modify_static(s, asymmetry=v[0]), v[1]),
             signature=signature,
