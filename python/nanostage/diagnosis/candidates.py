@@ -167,6 +167,23 @@ def _asymmetry_param(name: str, own: float) -> Param:
     )
 
 
+def _limit_param(name: str, lim: float) -> Param:
+    """A voltage limit from 0.3 to 2 times the model's ``lim``, from and null at it."""
+    return Param(name=name, unit="V", lower=0.3 * lim, upper=2 * lim, initial=lim, null=lim)
+
+
+def _offset_param(own: float, fc: float) -> Param:
+    """An offset force within ±``fc``, from 0, whose null is the model's ``own``."""
+    return Param(
+        name="external_force_n",
+        unit="N",
+        lower=-fc,
+        upper=fc,
+        initial=0.0,
+        null=_null(own, -fc, fc),
+    )
+
+
 def _with_plant(system: System, change: Callable[[Any], Any]) -> System:
     """``system`` with ``change`` applied to *its own* plant. A candidate's ``apply`` must
     start from the system it is given (which carries the fitted free parameters), never from
@@ -578,16 +595,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             lim = sys.output_stage.amplifier_limit_v
             return Candidate(
                 name="voltage_saturation",
-                params=(
-                    Param(
-                        name="amplifier_limit_v",
-                        unit="V",
-                        lower=0.3 * lim,
-                        upper=2 * lim,
-                        initial=lim,
-                        null=lim,
-                    ),
-                ),
+                params=(_limit_param("amplifier_limit_v", lim),),
                 apply=lambda s, v: replace(
                     s, output_stage=replace(s.output_stage, amplifier_limit_v=v[0])
                 ),
@@ -597,16 +605,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         lim = ctl.saturation_v
         return Candidate(
             name="voltage_saturation",
-            params=(
-                Param(
-                    name="saturation_v",
-                    unit="V",
-                    lower=0.3 * lim,
-                    upper=2 * lim,
-                    initial=lim,
-                    null=lim,
-                ),
-            ),
+            params=(_limit_param("saturation_v", lim),),
             apply=lambda s, v: replace(s, controller=replace(ctl, saturation_v=v[0])),
             signature="the command limit: the slope of the response while saturated",
         )
@@ -659,16 +658,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
         if isinstance(p, Plant):
             return Candidate(
                 name="offset_force",
-                params=(
-                    Param(
-                        name="external_force_n",
-                        unit="N",
-                        lower=-fc,
-                        upper=fc,
-                        initial=0.0,
-                        null=_null(p.table.external_force_n, -fc, fc),
-                    ),
-                ),
+                params=(_offset_param(p.table.external_force_n, fc),),
                 apply=lambda s, v: _with_plant(
                     s, lambda q: replace(q, table=replace(q.table, external_force_n=v[0]))
                 ),
@@ -677,16 +667,7 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             )
         return Candidate(
             name="offset_force",
-            params=(
-                Param(
-                    name="external_force_n",
-                    unit="N",
-                    lower=-fc,
-                    upper=fc,
-                    initial=0.0,
-                    null=_null(p.external_force_n, -fc, fc),
-                ),
-            ),
+            params=(_offset_param(p.external_force_n, fc),),
             apply=lambda s, v: _with_plant(s, lambda q: replace(q, external_force_n=v[0])),
             signature="a constant force along the axis: + and − moves differ by a constant force",
         )

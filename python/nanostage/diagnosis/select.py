@@ -268,6 +268,16 @@ def indistinguishable(a: CandidateResult, b: CandidateResult, ranking: str = "re
     return close and abs(float(np.mean(d))) <= 2.0 * se
 
 
+def _constrained(cov: FloatArray) -> list[int]:
+    """The parameters of a covariance the data constrain: a positive variance and a finite
+    row and column (the pseudo-inverse gives an unconstrained parameter variance 0)."""
+    return [
+        i
+        for i in range(cov.shape[0])
+        if cov[i, i] > 0.0 and bool(np.all(np.isfinite(cov[i])) and np.all(np.isfinite(cov[:, i])))
+    ]
+
+
 def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> float:
     """Log of the Occam factor of a candidate's own parameters (their ``names`` in
     ``fit.values``): the factor by which the Laplace approximation of the Bayesian
@@ -290,11 +300,7 @@ def log_occam_factor(fit: Fit, names: Sequence[str], n_settings: int = 0) -> flo
         return out  # no covariance (the standard errors are not finite either)
     idx = [fitted.index(n) for n in names if n in fit.values]
     sub = cov[np.ix_(idx, idx)]
-    keep = [
-        i
-        for i in range(len(idx))
-        if sub[i, i] > 0.0 and bool(np.all(np.isfinite(sub[i])) and np.all(np.isfinite(sub[:, i])))
-    ]
+    keep = _constrained(sub)
     if not keep:
         return out
     sub = sub[np.ix_(keep, keep)]
@@ -327,11 +333,7 @@ def null_test_p(fit: Fit, params: Sequence[tuple[str, Param]]) -> float | None:
     idx = [fitted.index(n) for n, _ in tested]
     delta = np.array([p.to_unit(fit.values[n]) - p.to_unit(p.null) for n, p in tested])  # type: ignore[arg-type]
     sub = cov[np.ix_(idx, idx)]
-    keep = [
-        i
-        for i in range(len(idx))
-        if sub[i, i] > 0.0 and bool(np.all(np.isfinite(sub[i])) and np.all(np.isfinite(sub[:, i])))
-    ]
+    keep = _constrained(sub)
     if not keep:
         return 1.0
     sub = sub[np.ix_(keep, keep)]
