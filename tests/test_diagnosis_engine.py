@@ -80,6 +80,7 @@ from nanostage.diagnosis.run import (
     experiment_advice,
     indistinguishable,
     model_gap,
+    readings_gap,
     selecting_results,
     ties_of_selected,
 )
@@ -805,6 +806,22 @@ def test_diagnosis_finds_a_hidden_asymmetry(tmp_path: Path) -> None:
         ns.presets.seed(1e-3), effects=Effects(motor_friction=FrictionModifiers(asymmetry=0.3))
     )
     assert model_gap(m, truth)["total_rms_m"] < 0.5 * r["gap_before"]["total_rms_m"]
+    # The same measure of mean readings simulated elsewhere (readings_gap, for a truth that
+    # is not a nanostage model): the truth's readings of the validation experiments, each
+    # with its own controller, give model_gap's value to the last bit.
+    mm = load_manifest(m)
+    val = [(spec, e) for spec, e in mm.experiments() if spec.role == "validate"]
+    sims = simulate_readings_and_commands(
+        [dc.replace(mm.system(spec), effects=truth.effects) for spec, _ in val],
+        [e for _, e in val],
+    )
+    readings = {e.name: reading for (_, e), (reading, _) in zip(val, sims, strict=True)}
+    assert readings_gap(m, readings)["total_rms_m"] == model_gap(m, truth)["total_rms_m"]
+    name = val[0][1].name
+    with pytest.raises(ValueError, match=f"no reading for validation experiment.*{name}"):
+        readings_gap(m, {k: v for k, v in readings.items() if k != name})
+    with pytest.raises(ValueError, match=f"readings\\['{name}'\\]: 3 values"):
+        readings_gap(m, {**readings, name: np.zeros(3)})
     # The model file of the selected model: loaded and simulated on the validation
     # experiments, it gives gap_after to the last bit; it carries the selected effects.
     assert r["model_file"] == "model.toml"

@@ -238,3 +238,68 @@ def test_written_case_is_read_by_the_diagnosis(tmp_path: Path) -> None:
         counts = e.position_m / 1e-7
         assert np.allclose(counts, np.round(counts), atol=1e-6)
     assert {s.name for s in m.splits()} == {"roles"}
+
+
+def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> bool:
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_deterministic_run_has_no_noise_and_the_same_start() -> None:
+    """The truth's own deterministic model: no encoder noise (the reading is the floor of
+    the true position), the friction level at its median, the start the recorded run drew."""
+    t = it.draw_truth("offset_force", 5)
+    e = _short_design(1)[0]
+    q = t.p["count_m"]
+    det = it.simulate_closed_loop(t, e.reference_m, e.gains, 9, deterministic=True)
+    run = it.simulate_closed_loop(t, e.reference_m, e.gains, 9)
+    assert _same(det, it.simulate_closed_loop(t, e.reference_m, e.gains, 9, deterministic=True))
+    assert np.array_equal(det["position_m"], np.floor(det["true_position_m"] / q) * q)
+    assert det["true_position_m"][0] == run["true_position_m"][0]
+    assert not np.array_equal(det["true_position_m"], run["true_position_m"])
+    # Another seed starts elsewhere within the first count, and from there alone differs.
+    other = it.simulate_closed_loop(t, e.reference_m, e.gains, 10, deterministic=True)
+    assert other["true_position_m"][0] != det["true_position_m"][0]
+
+
+@pytest.mark.parametrize("hidden", ["offset_force", "backlash"])
+def test_without_hidden_is_the_nominal_truth_from_the_same_draws(hidden: str) -> None:
+    """Without its hidden effect a run is the nominal truth's run from the same draws: the
+    same to the last bit (with a backlash, whose flank is drawn all the same, the
+    deterministic runs; the noisy ones draw their noise after it); with the effect it
+    differs (the effect's footprint)."""
+    t = it.draw_truth(hidden, 6)
+    bare = dc.replace(t, hidden="none", effect={})
+    e = _short_design(1)[0]
+    for det in (True, False) if hidden != "backlash" else (True,):
+        without = it.simulate_closed_loop(
+            t, e.reference_m, e.gains, 3, deterministic=det, without_hidden=True
+        )
+        assert _same(
+            without, it.simulate_closed_loop(bare, e.reference_m, e.gains, 3, deterministic=det)
+        )
+        full = it.simulate_closed_loop(t, e.reference_m, e.gains, 3, deterministic=det)
+        assert not np.array_equal(full["true_position_m"], without["true_position_m"])
+    # A backlash's flank is still drawn: the noisy run without it is not the nominal run.
+    if hidden == "backlash":
+        noisy = it.simulate_closed_loop(t, e.reference_m, e.gains, 3, without_hidden=True)
+        assert not _same(noisy, it.simulate_closed_loop(bare, e.reference_m, e.gains, 3))
+
+
+def test_oracle_readings_are_the_deterministic_model_of_the_written_case() -> None:
+    design = _short_design(3)
+    names = [design[0].name, design[2].name]
+    got = it.oracle_readings("offset_force", 4, names, design=design)
+    assert list(got) == names
+    t = it.draw_truth("offset_force", 4)
+    q = t.p["count_m"]
+    for i in (0, 2):
+        e = design[i]
+        # write_case's stream of experiment i: seed · 1000 + i.
+        det = it.simulate_closed_loop(t, e.reference_m, e.gains, 4 * 1000 + i, deterministic=True)
+        assert np.array_equal(got[e.name], det["true_position_m"] - 0.5 * q)
+    bare = it.oracle_readings("offset_force", 4, names[:1], design=design, without_hidden=True)
+    assert not np.array_equal(bare[names[0]], got[names[0]])
+    with pytest.raises(ValueError, match="'nope' are not experiments of the design"):
+        it.oracle_readings("offset_force", 4, ["nope"], design=design)
+    with pytest.raises(ValueError, match="workers"):
+        it.oracle_readings("offset_force", 4, names, design=design, workers=0)

@@ -18,7 +18,9 @@ Scores: top-1 identification over the cases with an effect, the false-alarm rate
 no-effect cases, the median validation-gap shrink of the selected model over the cases
 with an effect, and a confusion matrix (hidden → first selected). Beside them, per case:
 the shrink of the truth's own deterministic model (:func:`oracle_model`, nothing fitted:
-what the drawn data allow) and the truth-started check (is the effect detectable at all).
+what the drawn data allow; for the independent family :func:`independent_oracles`, which
+also measures how far the hidden effect shrinks that model's gap) and the truth-started
+check (is the effect detectable at all).
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ from . import independent_truth
 from .candidates import motor_static_force_n
 from .case_manifest import case_manifest_head
 from .manifest import load_manifest
-from .run import diagnose, model_gap
+from .run import diagnose, model_gap, readings_gap
 from .scatter import MAX_LEVEL_SCATTER
 from .settings import DiagnosisSettings
 from .traces import write_trace_csv
@@ -68,6 +70,7 @@ __all__ = [
     "design_reference",
     "draw_truth",
     "generate_case",
+    "independent_oracles",
     "oracle_model",
     "run_benchmark",
     "truth_starts",
@@ -447,6 +450,24 @@ def oracle_model(hidden: str, seed: int, *, level_spread: float = 0.005) -> Syst
     )
 
 
+def independent_oracles(hidden: str, seed: int, manifest: Path) -> tuple[float, float]:
+    """The validation gap (:func:`~.run.model_gap`'s measure) of an independent-family case's
+    own deterministic model (:func:`~.independent_truth.oracle_readings`), with and without
+    its hidden effect, m RMS."""
+    names = [e.name for e in independent_truth.experiment_design() if e.role == "validate"]
+    workers = os.cpu_count() or 1
+    gaps = [
+        readings_gap(
+            manifest,
+            independent_truth.oracle_readings(
+                hidden, seed, names, without_hidden=without, workers=workers
+            ),
+        )["total_rms_m"]
+        for without in (False, True)
+    ]
+    return float(gaps[0]), float(gaps[1])
+
+
 def _check_cell(row: dict[str, Any]) -> str:
     c = row["truth_check"]
     if c is None:
@@ -475,8 +496,10 @@ def run_benchmark(
     ``independent`` (:func:`nanostage.diagnosis.independent_truth.write_case`: another
     integrator, other friction laws, effects written from their physics, ``command_v``
     recorded, a 12-experiment design; its experiments are simulated in one spawned process
-    per CPU). The truth's own model and the truth-started check
-    exist for the own family only (the independent truth is not a nanostage model).
+    per CPU). The truth-started check exists for the own family only (the independent
+    truth's effects are not nanostage candidates); the truth's own model of the independent
+    family is its simulator's deterministic model, with and without the hidden effect
+    (:func:`independent_oracles`: ``oracle_shrink`` and ``effect_shrink`` per row).
 
     ``level_scatter`` (relative, 1σ; 0 leaves it out) is written into every case's manifest
     as the diagnosis's run-to-run friction level scatter
@@ -623,12 +646,14 @@ def _run_benchmark(
         # when the cross-fit is off; 0 when nothing was selected).
         cf = rep.get("crossfit")
         crossfit = cf["shrink"] if cf else (0.0 if not rep["selected"] else None)
-        # The shrink the truth's own deterministic model gives: what the data allow.
-        oracle = (
-            model_gap(manifest, oracle_model(h, seed * 10_000 + c))["total_rms_m"]
-            if h != "none" and own
-            else None
-        )
+        # The shrink the truth's own deterministic model gives: what the data allow (the
+        # independent family's by its own simulator, with the gap its effect leaves).
+        oracle: float | None = None
+        bare: float | None = None
+        if h != "none" and own:
+            oracle = model_gap(manifest, oracle_model(h, seed * 10_000 + c))["total_rms_m"]
+        elif h != "none":
+            oracle, bare = independent_oracles(h, seed * 10_000 + c, manifest)
         rows.append(
             {
                 "case": c,
@@ -645,6 +670,10 @@ def _run_benchmark(
                 "crossfit_shrink": crossfit,
                 "oracle_rms_m": oracle,
                 "oracle_shrink": None if oracle is None or before <= 0 else 1.0 - oracle / before,
+                "oracle_without_effect_rms_m": bare,
+                "effect_shrink": None
+                if oracle is None or bare is None or bare <= 0
+                else 1.0 - oracle / bare,
                 "explained_fraction": rep["explained_fraction"],
                 "seconds": seconds,
                 "truth": drawn["parameters"],
@@ -658,6 +687,11 @@ def _run_benchmark(
                 f"({shrink:+.0%})  {seconds:.0f} s"
                 + ("" if crossfit is None else f"  [cross-fit: {crossfit:+.0%}]")
                 + ("" if oracle is None else f"  [truth's model: {1.0 - oracle / before:+.0%}]")
+                + (
+                    ""
+                    if rows[-1]["effect_shrink"] is None
+                    else f"  [its effect: {rows[-1]['effect_shrink']:+.0%}]"
+                )
                 + (
                     ""
                     if check is None
@@ -674,6 +708,7 @@ def _run_benchmark(
     for r in rows:
         confusion[r["hidden"]][r["found"]] += 1
     oracles = [r["oracle_shrink"] for r in eff if r["oracle_shrink"] is not None]
+    effect_shrinks = [r["effect_shrink"] for r in eff if r["effect_shrink"] is not None]
     summary = {
         "cases": cases,
         "seed": seed,
@@ -691,6 +726,7 @@ def _run_benchmark(
         if eff
         else math.nan,
         "median_oracle_shrink": float(np.median(oracles)) if oracles else math.nan,
+        "median_effect_shrink": float(np.median(effect_shrinks)) if effect_shrinks else None,
         "median_crossfit_shrink": float(np.median([r["crossfit_shrink"] for r in eff]))
         if eff and all(r["crossfit_shrink"] is not None for r in eff)
         else None,
@@ -733,6 +769,19 @@ def _run_benchmark(
             else []
         ),
         *(
+            [
+                "The truth's own model is the independent simulator's, without noise and "
+                "with the run's friction level at its median. Without its hidden effect "
+                "it leaves a gap that the effect shrinks by a median "
+                f"{summary['median_effect_shrink']:.1%}: an effect that leaves no mark on "
+                "the validation experiments shrinks it by nothing, and no diagnosis can "
+                "find it there.",
+                "",
+            ]
+            if effect_shrinks
+            else []
+        ),
+        *(
             []
             if summary["median_crossfit_shrink"] is None
             else [
@@ -762,14 +811,15 @@ def _run_benchmark(
     md += [
         "",
         "| case | hidden | found | tied with | selected | gap before [nm] | after [nm] | "
-        "floor [nm] | shrink | cross-fit shrink | truth's shrink | explained | time [s] | "
-        "truth-started check |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "floor [nm] | shrink | cross-fit shrink | truth's shrink | its effect's shrink | "
+        "explained | time [s] | truth-started check |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ex = r["explained_fraction"]
         oc = r["oracle_shrink"]
         cs = r["crossfit_shrink"]
+        es = r["effect_shrink"]
         md.append(
             f"| {r['case']} | {r['hidden']} | {r['found']} | {', '.join(r['tied_with']) or '—'} "
             f"| {', '.join(r['selected']) or '—'} "
@@ -777,6 +827,7 @@ def _run_benchmark(
             f"| {r['noise_floor_rms_m'] * 1e9:.0f} | {r['shrink']:.0%} "
             f"| {'—' if cs is None else f'{cs:.0%}'} "
             f"| {'—' if oc is None else f'{oc:.0%}'} "
+            f"| {'—' if es is None else f'{es:.0%}'} "
             f"| {'—' if ex is None else f'{ex:.0%}'} | {r['seconds']:.0f} | {_check_cell(r)} |"
         )
     (out / "benchmark.md").write_text("\n".join(md) + "\n", encoding="utf-8")

@@ -63,6 +63,7 @@ __all__ = [
     "Truth",
     "draw_truth",
     "experiment_design",
+    "oracle_readings",
     "simulate_closed_loop",
     "simulate_open_loop",
     "write_case",
@@ -382,13 +383,16 @@ class _Run:
         return out
 
 
-def _initial_state(run: _Run, x0: float, rng: np.random.Generator) -> FloatArray:
+def _flank(truth: Truth, rng: np.random.Generator) -> float:
+    """The flank a backlash rests against when a run starts (the side of the last move,
+    drawn: ±1), 0 without a backlash (nothing drawn)."""
+    return float(rng.choice([-1.0, 1.0])) if truth.hidden == "backlash" else 0.0
+
+
+def _initial_state(run: _Run, x0: float, flank: float) -> FloatArray:
     y = np.zeros(_N_STATES)
     y[_X] = x0
-    d0 = 0.0
-    if run.truth.hidden == "backlash":
-        # Resting against one flank (the side of the last move).
-        d0 = 0.5 * run.truth.effect["width_m"] * float(rng.choice([-1.0, 1.0]))
+    d0 = 0.5 * run.truth.effect["width_m"] * flank if run.truth.hidden == "backlash" else 0.0
     y[_TH] = (x0 + d0) / run.r
     return y
 
@@ -512,25 +516,42 @@ def _gains(step_m: float) -> tuple[float, float, float]:
 
 
 def simulate_closed_loop(
-    truth: Truth, reference_m: FloatArray, gains: tuple[float, float, float], seed: int
+    truth: Truth,
+    reference_m: FloatArray,
+    gains: tuple[float, float, float],
+    seed: int,
+    *,
+    deterministic: bool = False,
+    without_hidden: bool = False,
 ) -> dict[str, FloatArray]:
     """Run the closed loop on ``reference_m`` (one value per sample); returns ``time_s``,
     ``position_m`` (the encoder reading), ``command_v`` (controller output at the amplifier
-    input), ``true_position_m`` and ``motor_position_m`` (r·θ)."""
+    input), ``true_position_m`` and ``motor_position_m`` (r·θ).
+
+    ``deterministic``: the truth's own deterministic model, from the same start (the
+    position within the first count and a backlash's flank, drawn from ``seed`` as in the
+    run): no encoder noise, and the run's friction level at its median (1). What a model of
+    the truth's form with the truth's parameters predicts; the gap it leaves to the
+    recorded run is the ceiling of any diagnosis. ``without_hidden``: the plant without its
+    hidden effect (the nominal truth), from the same draws (a backlash's flank is drawn all
+    the same), so that the difference from the run with it is the effect's footprint."""
     p = truth.p
     rng = np.random.default_rng(seed)
-    run = _Run(truth, level=float(rng.lognormal(0.0, p["friction_run_spread"])))
+    level = float(rng.lognormal(0.0, p["friction_run_spread"]))
+    plant = dc.replace(truth, hidden="none", effect={}) if without_hidden else truth
+    run = _Run(plant, level=1.0 if deterministic else level)
     q, ts, lat = p["count_m"], p["sample_period_s"], p["latency_s"]
     # The axis rests in the middle half of the reference's first count.
     x0 = (math.floor(reference_m[0] / q) + float(rng.uniform(0.25, 0.75))) * q
-    y = _initial_state(run, x0, rng)
+    y = _initial_state(run, x0, _flank(truth, rng))
+    noise_m = 0.0 if deterministic else p["encoder_noise_m"]
     pid = FixedPointPid(*gains)
     n = len(reference_m)
     pos, cmd, xt, xm = (np.empty(n) for _ in range(4))
     u_held = 0.0
     vmax = p["amplifier_limit_v"]
     for k in range(n):
-        counts = math.floor((y[_X] + rng.normal(0.0, p["encoder_noise_m"])) / q)
+        counts = math.floor((y[_X] + (rng.normal(0.0, noise_m) if noise_m else 0.0)) / q)
         r_counts = round(float(reference_m[k]) / q)
         out, code = pid.step(r_counts, counts)
         pos[k], cmd[k] = counts * q, out / (1 << _frac(pid.f["output"])) * OUTPUT_UNIT_V
@@ -561,7 +582,7 @@ def simulate_open_loop(
     """Drive the plant with a voltage per sample (no controller, no noise, the given
     friction level factor); returns time, table and motor positions (m) and velocities."""
     run = _Run(truth, level=level)
-    y = _initial_state(run, x0_m, np.random.default_rng(truth.seed))
+    y = _initial_state(run, x0_m, _flank(truth, np.random.default_rng(truth.seed)))
     ts = truth.p["sample_period_s"]
     n = len(voltage_v)
     x, xm, v, vm = (np.empty(n + 1) for _ in range(4))
@@ -663,8 +684,7 @@ def write_case(
 
     ``workers`` > 1 simulates the experiments in that many spawned processes (each
     experiment has its own random stream, so the files are the same to the last bit)."""
-    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
-        raise ValueError(f"workers = {workers!r} is invalid: expected an integer in [1, 256]")
+    _check_workers(workers)
     truth = draw_truth(hidden, seed)
     exps = list(design) if design is not None else experiment_design()
     out = Path(out_dir)
@@ -688,12 +708,7 @@ def write_case(
     }
     lines = case_manifest_head(fc0, ts0, tc0, seed, also_free=also, level_scatter=level_scatter)
     jobs = [(truth, e.reference_m, e.gains, seed * 1000 + i) for i, e in enumerate(exps)]
-    if workers > 1 and len(jobs) > 1:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
-            traces = list(pool.map(simulate_closed_loop, *zip(*jobs, strict=True)))
-    else:
-        traces = [simulate_closed_loop(*job) for job in jobs]
+    traces = _simulate_jobs(jobs, workers)
     for e, tr in zip(exps, traces, strict=True):
         data = np.column_stack([tr["time_s"], e.reference_m, tr["position_m"], tr["command_v"]])
         np.savetxt(
@@ -724,3 +739,66 @@ def write_case(
     }
     write_json(info, out / "truth.json", indent=1)
     return manifest, info
+
+
+def _check_workers(workers: int) -> None:
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
+        raise ValueError(f"workers = {workers!r} is invalid: expected an integer in [1, 256]")
+
+
+def _closed_loop_job(job: tuple[Any, ...]) -> dict[str, FloatArray]:
+    truth, reference_m, gains, seed, *flags = job
+    deterministic, without_hidden = flags or (False, False)
+    return simulate_closed_loop(
+        truth,
+        reference_m,
+        gains,
+        seed,
+        deterministic=deterministic,
+        without_hidden=without_hidden,
+    )
+
+
+def _simulate_jobs(jobs: Sequence[tuple[Any, ...]], workers: int) -> list[dict[str, FloatArray]]:
+    """:func:`simulate_closed_loop` of each job ``(truth, reference, gains, seed[,
+    deterministic, without_hidden])``, in ``workers`` spawned processes when more than one
+    (each run has its own random stream: the same results to the last bit)."""
+    if workers > 1 and len(jobs) > 1:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
+            return list(pool.map(_closed_loop_job, jobs))
+    return [_closed_loop_job(job) for job in jobs]
+
+
+def oracle_readings(
+    hidden: str,
+    seed: int,
+    names: Sequence[str],
+    *,
+    design: Sequence[DesignedExperiment] | None = None,
+    without_hidden: bool = False,
+    workers: int = 1,
+) -> dict[str, FloatArray]:
+    """The mean readings (true table position − half a count, as the diagnosis simulates
+    them) of the case :func:`write_case` writes for ``hidden`` and ``seed``, by the truth's
+    own deterministic model (:func:`simulate_closed_loop` with ``deterministic``), for the
+    experiments ``names`` of the design: the model no diagnosis can beat but by fitting
+    noise. ``without_hidden``: the same without the hidden effect. By experiment name."""
+    _check_workers(workers)
+    truth = draw_truth(hidden, seed)
+    exps = list(design) if design is not None else experiment_design()
+    unknown = sorted(set(names) - {e.name for e in exps})
+    if unknown:
+        raise ValueError(
+            f"names {', '.join(map(repr, unknown))} are not experiments of the design "
+            f"({', '.join(e.name for e in exps)})"
+        )
+    chosen = [(i, e) for i, e in enumerate(exps) if e.name in set(names)]
+    jobs = [
+        (truth, e.reference_m, e.gains, seed * 1000 + i, True, without_hidden) for i, e in chosen
+    ]
+    q = truth.p["count_m"]
+    return {
+        e.name: tr["true_position_m"] - 0.5 * q
+        for (_, e), tr in zip(chosen, _simulate_jobs(jobs, workers), strict=True)
+    }

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .._core import ConfigError, __version__
 from ..config import System, field_paths, get_path, replace_paths
@@ -74,6 +75,7 @@ __all__ = [
     "experiment_advice",
     "indistinguishable",
     "model_gap",
+    "readings_gap",
     "ties_of_selected",
     "unexplained_gap",
 ]
@@ -783,11 +785,18 @@ def _simulated(
     system, or the given system), hold windows rank-aligned to the measurement (so that
     measured − simulated is the engine's gap residual)."""
     systems = [f.system if isinstance(f, Fit) else f for f in fits]
+    return _aligned(
+        _validation_order(folds),
+        [reading for reading, _ in _simulated_pairs(systems, folds, adapt, cache)],
+    )
+
+
+def _aligned(experiments: Sequence[Experiment], readings: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each simulated mean reading with its hold windows rank-aligned to its experiment's
+    measurement (so that measured − aligned is the engine's gap residual)."""
     return [
-        align_holds(e.position_m, reading, e.reference_m)
-        for e, (reading, _) in zip(
-            _validation_order(folds), _simulated_pairs(systems, folds, adapt, cache), strict=True
-        )
+        align_holds(e.position_m, r, e.reference_m)
+        for e, r in zip(experiments, readings, strict=True)
     ]
 
 
@@ -861,6 +870,28 @@ def model_gap(manifest: str | Path | Manifest, system: System) -> dict[str, Any]
     val = _validation_order(setup.folds)
     sims = _simulated([system] * len(setup.folds), setup.folds, setup.adapt)
     return _gap(val, sims, _lead(setup.nominal))
+
+
+def readings_gap(
+    manifest: str | Path | Manifest, readings: Mapping[str, npt.ArrayLike]
+) -> dict[str, Any]:
+    """:func:`model_gap` of mean readings simulated elsewhere (true position − half a count,
+    as the engine simulates them; e.g. by the independent truth family's own model,
+    :func:`~nanostage.diagnosis.independent_truth.oracle_readings`): ``readings`` by
+    validation experiment name, one value per sample of that experiment."""
+    setup = _setup(manifest)
+    val = _validation_order(setup.folds)
+    missing = [e.name for e in val if e.name not in readings]
+    if missing:
+        raise ValueError(f"readings: no reading for validation experiment(s) {', '.join(missing)}")
+    sims = [np.asarray(readings[e.name], dtype=np.float64) for e in val]
+    for e, r in zip(val, sims, strict=True):
+        if r.shape != e.position_m.shape:
+            raise ValueError(
+                f"readings[{e.name!r}]: {r.size} values for an experiment of "
+                f"{e.position_m.size} samples"
+            )
+    return _gap(val, _aligned(val, sims), _lead(setup.nominal))
 
 
 def selecting_results(
