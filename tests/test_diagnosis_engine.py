@@ -2040,6 +2040,13 @@ def test_oracle_model_is_the_truth_without_its_noise(hidden: str) -> None:
     assert oracle.effects.table_friction == truth.effects.table_friction
     assert info["parameters"] == draw_truth(hidden, 12345)[1]["parameters"]
     assert info["parameters"] != draw_truth(hidden, 12346)[1]["parameters"]
+    # Without its hidden effect: the same drawn nominal truth, the no-effect case's of the
+    # same seed (whose draws start alike), and not the model with the effect.
+    bare = oracle_model(hidden, 12345, without_hidden=True)
+    assert bare == oracle_model("none", 12345) != oracle
+    assert bare.plant.dahl == oracle.plant.dahl  # type: ignore[union-attr]
+    with pytest.raises(ValueError):
+        oracle_model("gremlins", 1, without_hidden=True)
 
 
 def test_candidate_starts_are_clipped_and_checked_before_fitting(tmp_path: Path) -> None:
@@ -2146,8 +2153,17 @@ def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) ->
         ]
         == (row["oracle_shrink"])
     )
+    # The same model without the offset leaves most of the gap: the effect's own shrink.
+    m = case / "manifest.toml"
+    assert (
+        row["oracle_without_effect_rms_m"]
+        == (model_gap(m, oracle_model("offset_force", 30_000, without_hidden=True))["total_rms_m"])
+    )
+    assert row["effect_shrink"] == 1.0 - row["oracle_rms_m"] / row["oracle_without_effect_rms_m"]
+    assert row["effect_shrink"] > 0.8
     md = (tmp_path / "benchmark.md").read_text(encoding="utf-8")
-    assert "truth's shrink" in md
+    assert "truth's shrink" in md and "its effect's shrink" in md
+    assert "Without its hidden effect the truth's own model" in md
     assert "seed 3, diagnosed with a run-to-run friction level scatter of 0.01." in md
 
 

@@ -316,6 +316,15 @@ def draw_truth(
     drawn, and the random generator after those draws (the experiments' start positions
     come next)."""
     rng = np.random.default_rng(seed)
+    truth, fc, scale = _nominal_truth(rng, level_spread)
+    truth, info = _hidden(hidden, rng, truth)
+    info = {"parameters": info, "dahl_coulomb_force_n": fc, "motor_friction_scale": scale}
+    return truth, info, rng
+
+
+def _nominal_truth(rng: np.random.Generator, level_spread: float) -> tuple[System, float, float]:
+    """A case's truth before its hidden effect (the first draws of its ``rng``), with the
+    drawn Dahl level and motor friction scale."""
     base = presets.seed(1e-3)
     p = base.plant
     assert isinstance(p, Plant)
@@ -340,9 +349,7 @@ def draw_truth(
             encoder_errors=EncoderErrors(noise_std_m=5e-9),
         ),
     )
-    truth, info = _hidden(hidden, rng, truth)
-    info = {"parameters": info, "dahl_coulomb_force_n": fc, "motor_friction_scale": scale}
-    return truth, info, rng
+    return truth, fc, scale
 
 
 def generate_case(
@@ -438,11 +445,18 @@ def _truth_check(
     }
 
 
-def oracle_model(hidden: str, seed: int, *, level_spread: float = 0.005) -> System:
+def oracle_model(
+    hidden: str, seed: int, *, level_spread: float = 0.005, without_hidden: bool = False
+) -> System:
     """The deterministic part of a case's truth (:func:`draw_truth` without its stochastic
     friction and encoder noise, at the nominal model's integrator tolerance): the model no
-    candidate can beat but by fitting noise."""
-    truth, _, _ = draw_truth(hidden, seed, level_spread=level_spread)
+    candidate can beat but by fitting noise. ``without_hidden``: the same without the hidden
+    effect (the truth's nominal draws only)."""
+    if without_hidden:
+        draw_truth(hidden, seed, level_spread=level_spread)  # checks the name
+        truth, _, _ = _nominal_truth(np.random.default_rng(seed), level_spread)
+    else:
+        truth, _, _ = draw_truth(hidden, seed, level_spread=level_spread)
     return dc.replace(
         truth,
         integrator=presets.seed(1e-3).integrator,
@@ -651,7 +665,12 @@ def _run_benchmark(
         oracle: float | None = None
         bare: float | None = None
         if h != "none" and own:
-            oracle = model_gap(manifest, oracle_model(h, seed * 10_000 + c))["total_rms_m"]
+            oracle, bare = (
+                model_gap(manifest, oracle_model(h, seed * 10_000 + c, without_hidden=w))[
+                    "total_rms_m"
+                ]
+                for w in (False, True)
+            )
         elif h != "none":
             oracle, bare = independent_oracles(h, seed * 10_000 + c, manifest)
         rows.append(
@@ -770,12 +789,16 @@ def _run_benchmark(
         ),
         *(
             [
-                "The truth's own model is the independent simulator's, without noise and "
-                "with the run's friction level at its median. Without its hidden effect "
-                "it leaves a gap that the effect shrinks by a median "
-                f"{summary['median_effect_shrink']:.1%}: an effect that leaves no mark on "
-                "the validation experiments shrinks it by nothing, and no diagnosis can "
-                "find it there.",
+                (
+                    ""
+                    if own
+                    else "The truth's own model is the independent simulator's, without "
+                    "noise and with the run's friction level at its median. "
+                )
+                + "Without its hidden effect the truth's own model leaves a gap that the "
+                f"effect shrinks by a median {summary['median_effect_shrink']:.1%}: an "
+                "effect that leaves no mark on the validation experiments shrinks it by "
+                "nothing, and no diagnosis can find it there.",
                 "",
             ]
             if effect_shrinks
