@@ -46,6 +46,8 @@ from nanostage.diagnosis.candidates import (
 from nanostage.diagnosis.fit import AT_BOUND, Fit, FitProblem, at_bounds
 from nanostage.diagnosis.loop import (
     BIAS_ALIASES,
+    BIAS_MARKS,
+    BREAKAWAY_MARKS,
     FRICTION_MODELS,
     LAG_FAMILY,
     _Ctx,
@@ -56,7 +58,9 @@ from nanostage.diagnosis.loop import (
     cross_judge_split,
     crossfit_folds,
     crossfit_models,
+    experiment_class,
     hopeless_lag_refits,
+    mark_effects,
     refine_names,
 )
 from nanostage.diagnosis.manifest import load_manifest
@@ -72,7 +76,7 @@ from nanostage.diagnosis.objective import (
     noise_floor_m,
     simulate_readings_and_commands,
 )
-from nanostage.diagnosis.report import _lag_family_lines, markdown_report
+from nanostage.diagnosis.report import _extra_refit_lines, markdown_report
 from nanostage.diagnosis.run import (
     best_single,
     bound_warnings,
@@ -95,6 +99,7 @@ from nanostage.diagnosis.select import (
     too_few_to_test,
 )
 from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
+from nanostage.diagnosis.signatures import SIGNATURE_UNITS
 from nanostage.effects import (
     EFFECT_NAMES,
     Backlash,
@@ -399,14 +404,70 @@ def test_a_calibration_at_its_bounds_refines_the_whole_lag_family() -> None:
     ]
     off = dc.replace(st, refine_lag_family_at_bounds=False)
     assert refine_names(order, off, lag_family=True) == usual
-    # A missed mark of the traces triggers the same refits, by its own switch.
-    assert refine_names(order, off, missed_marks=True) == refine_names(order, st, lag_family=True)
-    no_marks = dc.replace(st, refine_lag_family_on_missed_marks=False)
-    assert refine_names(order, no_marks, missed_marks=True) == usual
-    assert refine_names(order, no_marks, lag_family=True, missed_marks=True) == refine_names(
+    # A missed mark that a lag makes (or a calibration bent for one) triggers the same
+    # refits, by its own switch.
+    lag_marks = ["ramp_level_v"]
+    assert refine_names(order, off, missed_marks=lag_marks) == refine_names(
+        order, st, lag_family=True
+    )
+    no_marks = dc.replace(st, refine_on_missed_marks=False)
+    assert refine_names(order, no_marks, missed_marks=lag_marks) == usual
+    assert refine_names(order, no_marks, lag_family=True, missed_marks=lag_marks) == refine_names(
         order, st, lag_family=True
     )
     assert set(LAG_FAMILY) <= set(CANDIDATES)
+
+
+def test_a_missed_mark_refines_the_effects_that_make_it() -> None:
+    """Each missed mark calls for the candidates that make it: the mean command of the
+    two directions (ramps, rest) for the offset force and the friction asymmetry, not the
+    lag family; the rise of breakaway with rest for the dwell-dependent friction; the
+    limit cycle, the ramps' level and the lost motion for the lag family. Every candidate
+    named exists, and only candidates outside the usual refits are added, in screening
+    order."""
+
+    def ranked(*names: str) -> list[CandidateResult]:
+        return [cast(CandidateResult, SimpleNamespace(effect=n, shrink=0.0)) for n in names]
+
+    st = DiagnosisSettings(refine_top=2, refine_best_friction_model=False)
+    order = ranked(
+        "lugre",
+        "stribeck",
+        "amplifier_dynamics",
+        "asymmetric_friction",
+        "dwell_static_friction",
+        "backlash",
+        "offset_force",
+    )
+    usual = ["lugre", "stribeck"]
+    for bias in BIAS_MARKS:
+        assert mark_effects(bias) == BIAS_ALIASES
+        assert refine_names(order, st, missed_marks=[bias]) == [
+            *usual,
+            "asymmetric_friction",
+            "offset_force",
+        ]
+    assert mark_effects("breakaway_per_decade_v") == ("dwell_static_friction",)
+    assert refine_names(order, st, missed_marks=["breakaway_per_decade_v"]) == [
+        *usual,
+        "dwell_static_friction",
+    ]
+    for lag_mark in ("hold_amplitude_m", "hold_frequency_hz", "ramp_level_v", "reversal_lag_m"):
+        assert mark_effects(lag_mark) == LAG_FAMILY
+    both = refine_names(order, st, missed_marks=["ramp_bias_v", "hold_amplitude_m"])
+    assert both == [*usual, "amplifier_dynamics", "asymmetric_friction", "backlash", "offset_force"]
+    # The same candidate for two marks is refitted once; at a bound the lag family joins.
+    assert refine_names(order, st, lag_family=True, missed_marks=["ramp_bias_v"]) == both
+    assert (
+        refine_names(
+            order, dc.replace(st, refine_on_missed_marks=False), missed_marks=["ramp_bias_v"]
+        )
+        == usual
+    )
+    # Every mark the signatures measure has its effects, and they are candidates.
+    for mark in SIGNATURE_UNITS:
+        assert set(mark_effects(mark)) <= set(CANDIDATES)
+    assert set(BIAS_MARKS) | set(BREAKAWAY_MARKS) <= set(SIGNATURE_UNITS)
 
 
 def test_the_lag_family_leaves_out_members_that_multiply_the_gap() -> None:
@@ -428,7 +489,7 @@ def test_the_lag_family_leaves_out_members_that_multiply_the_gap() -> None:
         res("lugre", -30.0),  # no lag-family member
     ]
     assert hopeless_lag_refits(order, st) == ["computation_delay"]
-    assert refine_names(order, st, missed_marks=True) == [
+    assert refine_names(order, st, missed_marks=["hold_amplitude_m"]) == [
         "offset_force",
         "sensor_delay",
         "lugre",
@@ -440,7 +501,7 @@ def test_the_lag_family_leaves_out_members_that_multiply_the_gap() -> None:
     assert "computation_delay" in refine_names(order, every, lag_family=True)
     # Without a trigger the lag family is not refitted at all.
     assert refine_names(order, st) == ["offset_force", "sensor_delay", "lugre"]
-    lines = _lag_family_lines(
+    lines = _extra_refit_lines(
         [
             {
                 "round": 1,
@@ -453,7 +514,7 @@ def test_the_lag_family_leaves_out_members_that_multiply_the_gap() -> None:
     )
     assert lines == [
         "Round 1: the model before misses the marks `ramp_level_v` (see *Signatures*), so the "
-        "lag family was refitted with the free parameters too: `backlash` (not "
+        "effects that make them were refitted with the free parameters too: `backlash` (not "
         "`computation_delay`: screened far worse than the model before).\n"
     ]
 
@@ -1260,7 +1321,7 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
     )
     d = diagnose(m, tmp_path / "out", settings=st, progress=True, figures=False)
     err = capsys.readouterr().err
-    assert d.report["lag_family_refits"] == [
+    assert d.report["extra_refits"] == [
         {
             "round": 1,
             "at_bounds": [],
@@ -1277,21 +1338,21 @@ def test_a_missed_mark_of_the_model_before_refines_the_lag_family(
     fitted = d.report["nominal_parameters"]["plant.dahl.coulomb_force_n"]["value"]
     assert fitted != presets.seed(1e-3).plant.dahl.coulomb_force_n
     assert get_path(judged[0], "plant.dahl.coulomb_force_n") == fitted
-    assert "refining the lag family too (computation_delay)" in err
+    assert "refining the effects that make them too (computation_delay)" in err
     assert "refit computation_delay" in err and "refit offset_force" not in err
     # The default ratio: the delay screened at more than ten times the gap before.
     d10 = diagnose(m, None, settings=dc.replace(st, lag_refit_max_gap_ratio=10.0), progress=True)
     err = capsys.readouterr().err
     delay = next(r for r in d10.report["candidates"] if r["effect"] == "computation_delay")
     assert delay["shrink"] < -9.0
-    assert d10.report["lag_family_refits"][0]["refined"] == []
-    assert d10.report["lag_family_refits"][0]["not_refined"] == ["computation_delay"]
+    assert d10.report["extra_refits"][0]["refined"] == []
+    assert d10.report["extra_refits"][0]["not_refined"] == ["computation_delay"]
     assert "not computation_delay: screened at more than 10× the gap before" in err
     assert "refit computation_delay" not in err
-    off = dc.replace(st, refine_lag_family_on_missed_marks=False)
+    off = dc.replace(st, refine_on_missed_marks=False)
     d_off = diagnose(m, None, settings=off, progress=True)
     assert "marks missed" not in capsys.readouterr().err
-    assert d_off.report["lag_family_refits"] == []
+    assert d_off.report["extra_refits"] == []
 
 
 def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
@@ -2201,6 +2262,50 @@ def test_cross_judge_split_holds_out_every_experiment_once() -> None:
             assert all(f for f in folds)
 
 
+@given(
+    classes=st_h.lists(st_h.integers(0, 2), min_size=2, max_size=16),
+    k=st_h.integers(0, 6),
+)
+@settings(max_examples=200, deadline=None)
+def test_stratified_folds_spread_each_class(classes: list[int], k: int) -> None:
+    """With classes, every experiment is still held out once in as many folds as without,
+    the folds' sizes differ by one at most, and no fold holds out more than ⌈m/k⌉ of a
+    class of m."""
+    n = len(classes)
+    folds = cross_judge_split(n, k, classes)
+    kk = max(2, min(k, n))
+    assert len(folds) == kk
+    assert sorted(i for f in folds for i in f) == list(range(n))
+    assert max(map(len, folds)) - min(map(len, folds)) <= 1
+    for c in set(classes):
+        m = classes.count(c)
+        assert max(sum(classes[i] == c for i in f) for f in folds) <= -(-m // kk)
+
+
+def test_the_independent_design_folds_hold_out_one_ramp_each() -> None:
+    """The independent family's twelve experiments (training ones, then validation ones)
+    fall into ramps, micro-steps and steps by their references alone, and each of the three
+    stratified folds holds out one of the three ramps; round robin held out two ramps in
+    one fold and trained it on the third."""
+    from nanostage.diagnosis.independent_truth import SEED as TRUTH_SEED
+    from nanostage.diagnosis.independent_truth import experiment_design
+
+    design = experiment_design()
+    exps = [e for e in design if e.role == "train"] + [e for e in design if e.role == "validate"]
+    count_m = TRUTH_SEED["count_m"]
+    classes = [experiment_class(e.reference_m, count_m) for e in exps]
+    kinds = [e.name.split("_")[1] for e in exps]
+    assert [c for c, k in zip(classes, kinds, strict=True) if k == "ramp"] == [0, 0, 0]
+    assert {c for c, k in zip(classes, kinds, strict=True) if k == "micro"} == {1}
+    assert {c for c, k in zip(classes, kinds, strict=True) if k in ("step", "reversal")} == {2}
+    assert [sum(kinds[i] == "ramp" for i in f) for f in cross_judge_split(12, 3, classes)] == [
+        1,
+        1,
+        1,
+    ]
+    assert max(sum(kinds[i] == "ramp" for i in f) for f in cross_judge_split(12, 3)) == 2
+
+
 def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -2215,7 +2320,10 @@ def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
     man = load_manifest(m)
     (fold,) = man.splits()
     order = [*fold.train, *fold.validate]
-    held_out = [{order[i] for i in f} for f in cross_judge_split(len(order), 2)]
+    refs = {spec.name: e.reference_m for spec, e in man.experiments()}
+    count_m = presets.seed(1e-3).encoder.count_m
+    classes = [experiment_class(refs[n], count_m) for n in order]
+    held_out = [{order[i] for i in f} for f in cross_judge_split(len(order), 2, classes)]
     names = set(order)
     fold_sets = [frozenset(names - h) for h in held_out]
     seen: list[tuple[frozenset[str], int]] = []

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..checks import executor_arg
 from ..config import System
@@ -21,6 +22,7 @@ from ..experiment import Experiment
 from .candidates import Candidate, Param, applicable_candidates
 from .fit import Fit, FitProblem, at_bounds
 from .objective import (
+    MICRO_STEP_MAX_COUNTS,
     SimulationCache,
     channel_units,
     command_floors_v,
@@ -28,6 +30,7 @@ from .objective import (
     floors_m,
     move_units,
     proportional_gain_v_per_m,
+    ramp_intervals,
     rms_of,
 )
 from .scatter import LevelScatter, level_floors, level_scatter_directions, level_sensitivities
@@ -46,9 +49,9 @@ from .signatures import SignatureJudge, misses
 
 FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
 #: The effects that add lag or play to the loop (limit cycles, phase lag): refined as a
-#: family when the model before has a free parameter at its bound or misses a mark of the
-#: traces (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`,
-#: :attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`).
+#: family when the model before has a free parameter at its bound or misses one of the
+#: marks they make (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`,
+#: :attr:`DiagnosisSettings.refine_on_missed_marks`, :func:`mark_effects`).
 LAG_FAMILY = (
     "backlash",
     "computation_delay",
@@ -64,6 +67,16 @@ LAG_FAMILY = (
 #: effort rather than by which one screened better.
 BIAS_ALIASES = ("offset_force", "asymmetric_friction")
 
+#: The marks of the traces (:mod:`~nanostage.diagnosis.signatures`) that only a force
+#: shifting both directions alike makes: the mean of the two directions' commands, on
+#: ramps and at rest. A symmetric friction law, a lag or a play leaves them at zero
+#: whatever its parameters; an offset force or a direction asymmetry of the friction
+#: levels sets them (:func:`mark_effects`).
+BIAS_MARKS = ("ramp_bias_v", "rest_command_mean_v")
+#: The mark of dwell-dependent breakaway: the rise of a move's peak command per decade
+#: of the rest before it (:func:`mark_effects`).
+BREAKAWAY_MARKS = ("breakaway_per_decade_v",)
+
 #: A train/validate split of experiments.
 Split = tuple[Sequence[Experiment], Sequence[Experiment]]
 
@@ -72,6 +85,8 @@ __all__ = [
     "crossfit_folds",
     "crossfit_models",
     "diagnose_experiments",
+    "experiment_class",
+    "mark_effects",
     "refine_names",
 ]
 
@@ -409,8 +424,8 @@ def diagnose_experiments(
         st.threads,
     )
     signature_distances: list[dict[str, float]] = []
-    # Per round whose lag family was refined beyond the usual refits: why, and which.
-    lag_refits: list[dict[str, Any]] = []
+    # Per round that refined candidates beyond the usual refits: why, and which.
+    extra_refits: list[dict[str, Any]] = []
 
     def signature_chi_squares(tied: Sequence[CandidateResult]) -> list[tuple[float, int]]:
         out = judge.tie_chi_squares([r.fit.system for r in tied])
@@ -526,19 +541,16 @@ def diagnose_experiments(
         bent = sorted({b["parameter"] for f in current_fits for b in at_bounds(f, free)})
         missed = (
             _missed_marks(judge, current_fits[0].system)
-            if st.refine_lag_family_on_missed_marks and current_fits
+            if st.refine_on_missed_marks and current_fits
             else []
         )
         usual = refine_names(results, st)
-        names_top = refine_names(results, st, lag_family=bool(bent), missed_marks=bool(missed))
+        names_top = refine_names(results, st, lag_family=bool(bent), missed_marks=missed)
         more = names_top[len(usual) :]
-        hopeless = (
-            [n for n in hopeless_lag_refits(results, st) if n not in usual]
-            if lag_refits_due(st, bool(bent), bool(missed))
-            else []
-        )
+        due = extra_refit_effects(st, bool(bent), missed)
+        hopeless = [n for n in hopeless_lag_refits(results, st) if n not in usual and n in due]
         if more or hopeless:
-            lag_refits.append(
+            extra_refits.append(
                 {
                     "round": rnd + 1,
                     "at_bounds": bent,
@@ -551,7 +563,7 @@ def diagnose_experiments(
             why += [f"marks missed ({', '.join(missed)})"] if missed else []
             print_progress(
                 f"  round {rnd + 1}: the model before has {' and '.join(why)}: "
-                f"refining the lag family too ({', '.join(more) or 'none'})"
+                f"refining the effects that make them too ({', '.join(more) or 'none'})"
                 + (
                     f"; not {', '.join(hopeless)}: screened at more than "
                     f"{st.lag_refit_max_gap_ratio:g}× the gap before"
@@ -699,7 +711,7 @@ def diagnose_experiments(
         # Per round, the signature χ² of each candidate a tie put before the judge (the last
         # evaluation of each, after any refit).
         "signature_distances": signature_distances,
-        "lag_family_refits": lag_refits,
+        "extra_refits": extra_refits,
         "cache": ctx.cache,
         "simulations": {
             "simulated": None if ctx.cache is None else ctx.cache.misses,
@@ -765,25 +777,55 @@ def _missed_marks(judge: SignatureJudge, system: System) -> list[str]:
     return [str(m["feature"]) for m in misses(judge.measured, simulated)]
 
 
+def mark_effects(mark: str) -> tuple[str, ...]:
+    """The candidates that make a mark of the traces (a feature of
+    :mod:`~nanostage.diagnosis.signatures`) which the nominal model's friction does not:
+    for :data:`BIAS_MARKS` the :data:`BIAS_ALIASES`, for :data:`BREAKAWAY_MARKS` the
+    dwell-dependent friction, for every other mark (the limit cycle in holds, the ramps'
+    level and slope, the split of the rest command, the lost motion at reversals) the
+    :data:`LAG_FAMILY`: a lag or a play makes a limit cycle and lost motion itself, and a
+    calibration bent to stand in for one misses the friction level on ramps and at rest
+    (a lag cannot move a bias or a breakaway's dwell dependence, so those marks do not
+    call for it)."""
+    if mark in BIAS_MARKS:
+        return BIAS_ALIASES
+    if mark in BREAKAWAY_MARKS:
+        return ("dwell_static_friction",)
+    return LAG_FAMILY
+
+
+def extra_refit_effects(
+    st: DiagnosisSettings, at_bounds: bool, missed_marks: Sequence[str]
+) -> list[str]:
+    """The candidates a round refits beyond the usual refits, in no particular order: the
+    :data:`LAG_FAMILY` when the model before has a free parameter at its bound
+    (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`), and the candidates that make
+    each mark it misses (:func:`mark_effects`,
+    :attr:`DiagnosisSettings.refine_on_missed_marks`)."""
+    out = list(LAG_FAMILY) if at_bounds and st.refine_lag_family_at_bounds else []
+    if st.refine_on_missed_marks:
+        for mark in missed_marks:
+            out += [e for e in mark_effects(mark) if e not in out]
+    return out
+
+
 def refine_names(
     results: Sequence[CandidateResult],
     st: DiagnosisSettings,
     lag_family: bool = False,
-    missed_marks: bool = False,
+    missed_marks: Sequence[str] = (),
 ) -> list[str]:
     """The candidates of a round refitted from all starts, from its screened results (best
     first): the best :attr:`DiagnosisSettings.refine_top`, and with
     :attr:`DiagnosisSettings.refine_best_friction_model` the best-screened friction-model
     candidate outside them (one at most); with
     :attr:`DiagnosisSettings.refine_bias_aliases`, the other member of
-    :data:`BIAS_ALIASES` when one of them is refined; with ``lag_family`` (the model
-    before has a free parameter at its bound) and
-    :attr:`DiagnosisSettings.refine_lag_family_at_bounds`, or with ``missed_marks`` (the
-    model before misses a mark of the traces) and
-    :attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`, then every other member
-    of :data:`LAG_FAMILY` among them, in screening order, but for those whose screened
-    validation gap is more than :attr:`DiagnosisSettings.lag_refit_max_gap_ratio` times
-    the model before's (:func:`hopeless_lag_refits`)."""
+    :data:`BIAS_ALIASES` when one of them is refined; then the candidates of
+    :func:`extra_refit_effects` (``lag_family``: the model before has a free parameter at
+    its bound; ``missed_marks``: the marks of the traces it misses) among them, in
+    screening order, but for the lag-family members whose screened validation gap is more
+    than :attr:`DiagnosisSettings.lag_refit_max_gap_ratio` times the model before's
+    (:func:`hopeless_lag_refits`)."""
     names = [r.effect for r in results[: st.refine_top]]
     if st.refine_best_friction_model:
         rest = (r.effect for r in results[st.refine_top :] if r.effect in FRICTION_MODELS)
@@ -792,23 +834,15 @@ def refine_names(
             names.append(best)
     if st.refine_bias_aliases and any(n in BIAS_ALIASES for n in names):
         names += [r.effect for r in results if r.effect in BIAS_ALIASES and r.effect not in names]
-    if lag_refits_due(st, lag_family, missed_marks):
+    due = set(extra_refit_effects(st, lag_family, missed_marks))
+    if due:
         skip = set(hopeless_lag_refits(results, st))
         names += [
             r.effect
             for r in results
-            if r.effect in LAG_FAMILY and r.effect not in names and r.effect not in skip
+            if r.effect in due and r.effect not in names and r.effect not in skip
         ]
     return names
-
-
-def lag_refits_due(st: DiagnosisSettings, at_bounds: bool, missed_marks: bool) -> bool:
-    """Whether a round refits the lag family beyond the usual refits: the model before has
-    a free parameter at its bound (:attr:`DiagnosisSettings.refine_lag_family_at_bounds`)
-    or misses a mark (:attr:`DiagnosisSettings.refine_lag_family_on_missed_marks`)."""
-    return (at_bounds and st.refine_lag_family_at_bounds) or (
-        missed_marks and st.refine_lag_family_on_missed_marks
-    )
 
 
 def hopeless_lag_refits(results: Sequence[CandidateResult], st: DiagnosisSettings) -> list[str]:
@@ -1069,13 +1103,30 @@ def _warm_params(cand: Candidate, values: Sequence[float]) -> list[tuple[str, Pa
     ]
 
 
-def cross_judge_split(n: int, k: int) -> list[list[int]]:
-    """The held-out indices of each fold of :func:`_cross_judge` over ``n`` experiments:
-    fold ``j`` holds out ``j, j + k, j + 2k, …`` (round robin over the training experiments
-    then the validation ones, so each fold holds a mix of kinds); every experiment is held
-    out once. ``k`` is clipped to [2, n]."""
+def cross_judge_split(n: int, k: int, classes: Sequence[int] | None = None) -> list[list[int]]:
+    """The held-out indices of each fold of :func:`_cross_judge` over ``n`` experiments;
+    every experiment is held out once, and ``k`` is clipped to [2, n]. Without ``classes``
+    fold ``j`` holds out ``j, j + k, j + 2k, …`` (round robin). With ``classes`` (one per
+    experiment, :func:`experiment_class`) the experiments are dealt round robin class by
+    class, the count running on from one class to the next: each fold holds out at most
+    ``⌈m/k⌉`` of a class of ``m``, so that no fold trains on one ramp while it judges the
+    other two (stratified folds)."""
     k = max(2, min(k, n))
-    return [list(range(j, n, k)) for j in range(k)]
+    order = list(range(n)) if classes is None else sorted(range(n), key=lambda i: classes[i])
+    return [sorted(order[j::k]) for j in range(k)]
+
+
+def experiment_class(reference_m: npt.ArrayLike, count_m: float) -> int:
+    """The coarse kind of an experiment from its reference, for stratified folds
+    (:func:`cross_judge_split`): 0 with a constant-velocity ramp
+    (:func:`~.objective.ramp_intervals`), 1 when every move is of at most
+    :data:`~.objective.MICRO_STEP_MAX_COUNTS` counts (micro-steps: breakaway, presliding),
+    2 otherwise (steps and step reversals)."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    if ramp_intervals(ref):
+        return 0
+    d = np.abs(np.diff(ref))
+    return 1 if d.size and float(np.max(d)) <= MICRO_STEP_MAX_COUNTS * count_m else 2
 
 
 def _cross_judge(
@@ -1094,7 +1145,11 @@ def _cross_judge(
     st = ctx.st
     train, validate = ctx.folds[0]
     exps = [*train, *validate]
-    held = cross_judge_split(len(exps), st.cross_judge_folds)
+    held = cross_judge_split(
+        len(exps),
+        st.cross_judge_folds,
+        [experiment_class(e.reference_m, current.encoder.count_m) for e in exps],
+    )
     folds = [
         ([e for i, e in enumerate(exps) if i not in out], [exps[i] for i in out]) for out in held
     ]

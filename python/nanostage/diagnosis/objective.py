@@ -36,6 +36,7 @@ from .settings import FloatArray
 BACKLASH_FLANKS: tuple[float, float] = (1.0, -1.0)
 
 __all__ = [
+    "MICRO_STEP_MAX_COUNTS",
     "SimulationCache",
     "align_holds",
     "apply_gap_plan",
@@ -150,6 +151,11 @@ HUNTING_QUANTA = 4.0
 LIMIT_CYCLE_MIN_CORRELATION = 0.5
 #: Shortest constant-velocity stretch of a reference counted as a ramp, samples.
 MIN_RAMP_SAMPLES = 40
+
+
+#: The largest move of a micro-step, in encoder counts: one that shows breakaway and
+#: presliding rather than a slew.
+MICRO_STEP_MAX_COUNTS = 10.0
 
 
 def ramp_intervals(reference_m: npt.ArrayLike) -> list[tuple[int, int, float]]:

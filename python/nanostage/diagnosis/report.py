@@ -559,9 +559,9 @@ def _cross_judged_table(rounds: Any) -> str:
     return _table(["round", "effect", "geometric shrink", "p", "significant"], rows)
 
 
-def _lag_family_lines(refits: Any) -> list[str]:
-    """One line per round whose lag family was refitted beyond the usual refits, and why
-    (report ``lag_family_refits``)."""
+def _extra_refit_lines(refits: Any) -> list[str]:
+    """One line per round that refitted candidates beyond the usual refits, and why
+    (report ``extra_refits``)."""
     out: list[str] = []
     for d in refits if isinstance(refits, list | tuple) else []:
         why = []
@@ -574,8 +574,9 @@ def _lag_family_lines(refits: Any) -> list[str]:
         names = ", ".join(f"`{_md_escape(str(n))}`" for n in d.get("refined") or []) or "none"
         skipped = ", ".join(f"`{_md_escape(str(n))}`" for n in d.get("not_refined") or [])
         out.append(
-            f"Round {d.get('round')}: the model before {' and '.join(why)}, so the lag family "
-            f"was refitted with the free parameters too: {names}"
+            f"Round {d.get('round')}: the model before {' and '.join(why)}, so the effects "
+            f"that make {'them' if d.get('missed_marks') else 'it'} were refitted with the free "
+            f"parameters too: {names}"
             + (f" (not {skipped}: screened far worse than the model before)" if skipped else "")
             + ".\n"
         )
@@ -885,7 +886,7 @@ def markdown_report(
                 "report.json.\n"
             )
             out.append(_candidates_table(cands))
-            out.extend(_lag_family_lines(report.get("lag_family_refits")))
+            out.extend(_extra_refit_lines(report.get("extra_refits")))
         else:
             out.append(_records_table(cands) if cands else "No candidates.\n")
     rounds = report.get("forward_selection")
@@ -992,7 +993,7 @@ def markdown_report(
         "indistinguishable",
         "tie_break",
         "tie_signatures",
-        "lag_family_refits",
+        "extra_refits",
         "cross_judged",
         "crossfit",
         "evidence",

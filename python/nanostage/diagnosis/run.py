@@ -53,6 +53,7 @@ from .gap import analyse_gap
 from .loop import crossfit_models, diagnose_experiments
 from .manifest import Manifest, load_manifest
 from .objective import (
+    MICRO_STEP_MAX_COUNTS,
     SimulationCache,
     align_holds,
     command_problems,
@@ -421,7 +422,7 @@ def experiment_advice(
         )
     sizes = [abs(m[2]) for m in moves if m[2] != 0]
     count = _count(experiments)
-    if count is not None and (not sizes or min(sizes) > 10.0 * count):
+    if count is not None and (not sizes or min(sizes) > MICRO_STEP_MAX_COUNTS * count):
         advice.append(
             {
                 "effects": ["dwell_static_friction", "lugre", "gms", "dahl"],
@@ -975,7 +976,7 @@ def assemble_report(
             if d
         ],
         # Per round whose lag family was refitted beyond the usual refits: why.
-        "lag_family_refits": [dict(d) for d in out.get("lag_family_refits") or []],
+        "extra_refits": [dict(d) for d in out.get("extra_refits") or []],
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": single_best.effect if single_best else None,

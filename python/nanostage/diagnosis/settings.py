@@ -166,18 +166,25 @@ class DiagnosisSettings:
     #: 12th of 17 on a consumed case, and its joint refit found the truth's bandwidth).
     #: Costs one full refit per family member on those cases only.
     refine_lag_family_at_bounds: bool = True
-    #: Also refine every candidate of the lag family when the model before, as
-    #: calibrated, misses a mark of the traces by more than three standard errors
-    #: (:func:`~nanostage.diagnosis.signatures.misses`: the limit cycle in holds, the
-    #: command on ramps or at rest). A calibration bent to stand in for a lag shows there
-    #: before any parameter reaches a bound: on a consumed amplifier-lag case the
-    #: calibrated friction fell until the steps' slews matched, the ramps' command level
-    #: fell 70 standard errors short, the held screening left the lag outside the
-    #: refitted five, and its joint fit cut the validation gap by 62 %. On the
-    #: independent family the ramps' command is missed in nearly every case, so this
-    #: costs up to five more full refits there; on the own family (no command) it acts
-    #: where a limit cycle is missed (backlash and delay cases).
-    refine_lag_family_on_missed_marks: bool = True
+    #: Also refine the candidates that make a mark of the traces the model before, as
+    #: calibrated, misses by more than three standard errors
+    #: (:func:`~nanostage.diagnosis.signatures.misses`, :func:`~.loop.mark_effects`): the
+    #: offset force and the friction asymmetry for the mean command of the two directions
+    #: (on ramps or at rest), the dwell-dependent friction for the rise of breakaway with
+    #: rest, the lag family for every other mark (the limit cycle in holds, the ramps'
+    #: command level and slope, the split of the rest command, the lost motion at
+    #: reversals). A calibration bent to stand in for a lag shows there before any
+    #: parameter reaches a bound: on a consumed amplifier-lag case the calibrated friction
+    #: fell until the steps' slews matched, the ramps' command level fell 70 standard
+    #: errors short, the held screening left the lag outside the refitted five, and its
+    #: joint fit cut the validation gap by 62 %. A missed bias screened with a calibration
+    #: held that had taken up what it could of it: on a consumed asymmetry case the
+    #: asymmetry screened 12th of 17 and was not refitted, while the lag family, which
+    #: cannot move a bias, was. On the independent family the ramps' command is missed in
+    #: nearly every case, so this costs up to five more full refits there; on the own
+    #: family (no command) it acts where a limit cycle is missed (backlash and delay
+    #: cases).
+    refine_on_missed_marks: bool = True
     #: The lag family's extra refits (at bounds, on missed marks) leave out a member whose
     #: screened pooled validation gap is more than this many times the model before's
     #: (:func:`~nanostage.diagnosis.loop.hopeless_lag_refits`; ``math.inf`` refits every
