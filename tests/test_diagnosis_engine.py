@@ -16,7 +16,7 @@ from typing import Any, cast
 
 import numpy as np
 import pytest
-from diagnosis_cases import candidate_result, step_case
+from diagnosis_cases import candidate_result, simulated_experiment, step_case
 from hypothesis import given, settings
 from hypothesis import strategies as st_h
 
@@ -74,6 +74,7 @@ from nanostage.diagnosis.objective import (
     hunting_ramps,
     move_units,
     noise_floor_m,
+    rms_of,
     simulate_readings_and_commands,
 )
 from nanostage.diagnosis.report import _extra_refit_lines, markdown_report
@@ -2430,3 +2431,66 @@ def test_the_round_selects_by_the_cross_judged_results(
     assert d.report["selected"] == chosen
     first = next(c for c in d.report["candidates"] if c["effect"] == chosen[0])
     assert d.report["gap_after"]["total_rms_m"] == pytest.approx(first["validation_rms_m"])
+
+
+def test_screening_moves_the_held_nominal_by_its_linearised_best(tmp_path: Path) -> None:
+    """With ``screen_moves_nominal``, a held screening fit sees the training gap with the
+    free nominal parameters' Jacobian projected out, and its model is the held one moved by
+    the Gauss–Newton step: from a calibration bent to 27 N, on data whose Coulomb force is
+    the preset's 30.4 N and which have no offset, the step brings the force within 0.5 N
+    of it and the offset candidate to a smaller force than held; the fit's training gap is
+    its model's and below the held one's. Off, the force stays where it was held."""
+    m = _case(tmp_path, Effects(), seed=5)
+    man = load_manifest(m)
+    exps = [e for _, e in man.experiments()]
+    nominal = man.system()
+    name = "plant.dahl.coulomb_force_n"
+    assert nominal.plant.dahl.coulomb_force_n == pytest.approx(30.4)
+    free = [(name, Param(name="f", unit="N", lower=20, upper=40, initial=30.4))]
+    (cand,), _ = applicable_candidates(nominal, ["offset_force"])
+    extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
+    fits = {}
+    for moves in (False, True):
+        st = dc.replace(FAST, screen_moves_nominal=moves)
+        ctx = _Ctx(
+            free=free,
+            set_free=lambda s, v: replace_paths(s, dict(v)),
+            folds=[(exps[:2], exps[2:])],
+            floor=1e-8,
+            st=st,
+            adapt=lambda s, e: s,
+            nominal=nominal,
+            warm=[{name: 27.0}],
+        )
+        f, prob = ctx._fit_held(nominal, extra, cand.apply, {name: 27.0}, exps[:2], 1, None, 1, 1)
+        assert prob.projection is None  # taken off again after the fit
+        assert f.train_rms_m == pytest.approx(rms_of(prob.residuals(f.system, exps[:2])), rel=1e-12)
+        assert get_path(f.system, name) == f.values[name]
+        fits[moves] = f
+    held, moved = fits[False], fits[True]
+    assert held.values[name] == 27.0
+    assert moved.values[name] == pytest.approx(30.4, abs=0.5)
+    off = "offset_force.external_force_n"
+    assert abs(moved.values[off]) < abs(held.values[off])
+    assert moved.train_rms_m < held.train_rms_m
+
+
+@given(seed=st_h.integers(0, 2**32 - 1), k=st_h.integers(1, 3))
+@settings(max_examples=20, deadline=None)
+def test_a_projected_fit_problem_sees_no_residual_along_its_basis(seed: int, k: int) -> None:
+    """Every residual vector a fit problem with a projection returns (failed simulations'
+    included) is orthogonal to the basis; without one it is the plain scaled gap."""
+    sys_ = ns.presets.seed(1e-3)
+    ref = np.r_[np.full(30, 1e-3), np.full(200, 1.1e-3)]
+    exps = [simulated_experiment(sys_, ref, "step", 1, 1e-3)]
+    name = "plant.dahl.coulomb_force_n"
+    free = [(name, Param(name="f", unit="N", lower=20, upper=40, initial=30.4))]
+    prob = FitProblem(free, lambda v: replace_paths(sys_, {name: v[0]}), exps, 1, lambda s, e: s)
+    plain = prob._vectors([np.array([1.3]), np.array([1.7])])
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.standard_normal((plain[0].size, k)))
+    prob.projection = q
+    projected = prob._vectors([np.array([1.3]), np.array([1.7])])
+    for v, p in zip(plain, projected, strict=True):
+        assert np.abs(q.T @ p).max() <= 1e-9 * max(np.abs(v).max(), 1.0)
+        assert p == pytest.approx(v - q @ (q.T @ v), abs=1e-12 * np.abs(v).max())

@@ -95,6 +95,12 @@ class FitProblem:
         self._plans: dict[str, list[HoldPlan]] = {}
         #: :func:`command_plan` of each experiment with a measured command.
         self._command_plans: dict[str, list[HoldPlan]] = {}
+        #: An orthonormal basis (columns) of directions taken out of every scaled residual
+        #: vector the fit sees (None: none): the span of the free nominal parameters'
+        #: Jacobian, so that a screening fit with them held judges a candidate as if they
+        #: had moved to their linearised best (variable projection;
+        #: :attr:`DiagnosisSettings.screen_moves_nominal`).
+        self.projection: FloatArray | None = None
 
     def _uses_command(self, e: Experiment) -> bool:
         return self.command_weights_m_per_v.get(e.name, 0.0) > 0.0 and e.command_v is not None
@@ -191,9 +197,11 @@ class FitProblem:
                 systems.append(None)
         it = iter(self.residuals_or_none([s for s in systems if s is not None]))
         out = []
+        q = self.projection
         for maybe in systems:
             r = None if maybe is None else next(it)
-            out.append(self._failed_vector() if r is None else self._scaled(r))
+            v = self._failed_vector() if r is None else self._scaled(r)
+            out.append(v if q is None else v - q @ (q.T @ v))
         return out
 
     def residuals_or_none(self, systems: Sequence[System]) -> list[list[FloatArray] | None]:

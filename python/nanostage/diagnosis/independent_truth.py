@@ -707,7 +707,9 @@ def write_case(
         for path, (lo, hi) in UNCERTAIN_MOTOR_AND_INERTIA.items()
     }
     lines = case_manifest_head(fc0, ts0, tc0, seed, also_free=also, level_scatter=level_scatter)
-    jobs = [(truth, e.reference_m, e.gains, seed * 1000 + i) for i, e in enumerate(exps)]
+    jobs = [
+        (truth, e.reference_m, e.gains, seed * 1000 + i, False, False) for i, e in enumerate(exps)
+    ]
     traces = _simulate_jobs(jobs, workers)
     for e, tr in zip(exps, traces, strict=True):
         data = np.column_stack([tr["time_s"], e.reference_m, tr["position_m"], tr["command_v"]])
@@ -746,9 +748,13 @@ def _check_workers(workers: int) -> None:
         raise ValueError(f"workers = {workers!r} is invalid: expected an integer in [1, 256]")
 
 
-def _closed_loop_job(job: tuple[Any, ...]) -> dict[str, FloatArray]:
-    truth, reference_m, gains, seed, *flags = job
-    deterministic, without_hidden = flags or (False, False)
+#: One run of :func:`simulate_closed_loop`: ``(truth, reference_m, gains, seed,
+#: deterministic, without_hidden)``.
+_Job = tuple[Truth, FloatArray, tuple[float, float, float], int, bool, bool]
+
+
+def _closed_loop_job(job: _Job) -> dict[str, FloatArray]:
+    truth, reference_m, gains, seed, deterministic, without_hidden = job
     return simulate_closed_loop(
         truth,
         reference_m,
@@ -759,10 +765,10 @@ def _closed_loop_job(job: tuple[Any, ...]) -> dict[str, FloatArray]:
     )
 
 
-def _simulate_jobs(jobs: Sequence[tuple[Any, ...]], workers: int) -> list[dict[str, FloatArray]]:
-    """:func:`simulate_closed_loop` of each job ``(truth, reference, gains, seed[,
-    deterministic, without_hidden])``, in ``workers`` spawned processes when more than one
-    (each run has its own random stream: the same results to the last bit)."""
+def _simulate_jobs(jobs: Sequence[_Job], workers: int) -> list[dict[str, FloatArray]]:
+    """:func:`simulate_closed_loop` of each job (:data:`_Job`), in ``workers`` spawned
+    processes when more than one (each run has its own random stream: the same results to
+    the last bit)."""
     if workers > 1 and len(jobs) > 1:
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:

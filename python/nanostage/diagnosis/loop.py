@@ -91,6 +91,24 @@ __all__ = [
 ]
 
 
+#: Singular values of the free nominal parameters' Jacobian below this share of the
+#: largest are left out of :class:`NominalStep` (directions the training experiments do
+#: not constrain).
+NOMINAL_STEP_RCOND = 1e-6
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NominalStep:
+    """The free nominal parameters' Jacobian of a model before's scaled training residual,
+    at their values ``unit`` (normalised coordinates), as a thin singular value
+    decomposition ``basis · diag(singular) · rightᵀ`` (:meth:`_Ctx._nominal_step`)."""
+
+    unit: FloatArray
+    basis: FloatArray
+    singular: FloatArray
+    right: FloatArray
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class _Ctx:
     free: Sequence[tuple[str, Param]]
@@ -231,6 +249,13 @@ class _Ctx:
             return full([*fixed, *values])
 
         prob = self.problem(list(params), build, train)
+        step = (
+            self._nominal_step(base, fixed, train)
+            if self.st.screen_moves_nominal and self.free
+            else None
+        )
+        if step is not None:
+            prob.projection = step.basis
         k = len(params)
         f = prob.fit(
             screen_starts,
@@ -246,7 +271,76 @@ class _Ctx:
         if f.unit_covariance.shape == (k, k):
             cov = np.zeros((nf + k, nf + k))
             cov[nf:, nf:] = f.unit_covariance
-        return dataclasses.replace(f, values=held | f.values, unit_covariance=cov), prob
+        f = dataclasses.replace(f, values=held | f.values, unit_covariance=cov)
+        if step is not None:
+            prob.projection = None
+            f = self._stepped(f, step, full, prob)
+        return f, prob
+
+    def _nominal_step(
+        self, base: System, fixed: Sequence[float], train: Sequence[Experiment]
+    ) -> NominalStep | None:
+        """The Jacobian of the model before's scaled training residual (:class:`FitProblem`)
+        in the free nominal parameters' normalised coordinates at ``fixed`` (forward
+        differences of :attr:`DiagnosisSettings.diff_step`, backward at an upper bound), as
+        its thin singular value decomposition; None when a simulation fails. Every candidate
+        of a round asks for the same simulations, which the cache keeps."""
+        prob = self.problem(self.free, self.builder(base, lambda s, v: s), train)
+        prob.scale_m = base.encoder.count_m
+        u0 = np.array([p.to_unit(v) for (_, p), v in zip(self.free, fixed, strict=True)])
+        h = self.st.diff_step
+        steps = np.where(u0 + h <= 1.0, h, -h)
+        points = [u0] + [u0 + d * np.eye(len(u0))[i] for i, d in enumerate(steps)]
+        try:
+            systems = [
+                prob.build([p.from_unit(float(x)) for (_, p), x in zip(self.free, u, strict=True)])
+                for u in points
+            ]
+        except ValueError:
+            return None
+        res = prob.residuals_or_none(systems)
+        if any(r is None for r in res):
+            return None
+        vecs = [prob._scaled(r) for r in res if r is not None]
+        jac = np.column_stack([(v - vecs[0]) / d for v, d in zip(vecs[1:], steps, strict=True)])
+        u, sv, vt = np.linalg.svd(jac, full_matrices=False)
+        if not sv.size or sv[0] <= 0.0:
+            return None
+        keep = sv > NOMINAL_STEP_RCOND * sv[0]
+        return NominalStep(unit=u0, basis=u[:, keep], singular=sv[keep], right=vt[keep].T)
+
+    def _stepped(
+        self,
+        f: Fit,
+        step: NominalStep,
+        full: Callable[[Sequence[float]], System],
+        prob: FitProblem,
+    ) -> Fit:
+        """``f`` (a held screening fit) with the free nominal parameters moved by the
+        Gauss–Newton step that the variable projection assumed (the least-squares solution
+        of the Jacobian against the training residual at ``f``, clipped to the bounds), when
+        the step lowers the training gap; else ``f`` with its training gap recomputed
+        without the projection. Its ``train_rms_m`` is the gap of the model it returns."""
+        own = [f.values[n] for n, _ in prob.params]
+        before = prob.residuals_or_none([f.system])[0]
+        if before is None:
+            return f
+        r = prob._scaled(before)
+        delta = -step.right @ ((step.basis.T @ r) / step.singular)
+        moved_unit = np.clip(step.unit + delta, 0.0, 1.0)
+        moved = [p.from_unit(float(x)) for (_, p), x in zip(self.free, moved_unit, strict=True)]
+        kept = dataclasses.replace(f, train_rms_m=rms_of(before))
+        try:
+            system = full([*moved, *own])
+        except ValueError:
+            return kept
+        after = prob.residuals_or_none([system])[0]
+        if after is None or rms_of(after) >= rms_of(before):
+            return kept
+        values = {n: v for (n, _), v in zip(self.free, moved, strict=True)} | {
+            n: f.values[n] for n, _ in prob.params
+        }
+        return dataclasses.replace(f, values=values, train_rms_m=rms_of(after), system=system)
 
     def fit_and_validate(
         self,

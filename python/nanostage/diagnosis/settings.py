@@ -244,6 +244,17 @@ class DiagnosisSettings:
     #: the cache). With 3 (own family) there is little to save: from 17 % fewer (offset
     #: force, 25 972 instead of 31 125) to 10 % more (lead-periodic friction, asymmetry).
     screen_holds_nominal: bool = True
+    #: With :attr:`screen_holds_nominal`, let the held free nominal parameters move
+    #: linearly in screening (variable projection): each candidate is fitted to the part of
+    #: the training gap that the free parameters' Jacobian at the model before (computed
+    #: once per round and fold, ``free + 1`` simulation batches, kept by the cache) cannot
+    #: take up, and its model is then the held one moved by the Gauss–Newton step of the
+    #: free parameters (clipped to their bounds; kept only when it lowers the training
+    #: gap). A calibration bent to stand in for a missing effect is then undone to first
+    #: order at screening cost, so the candidate that made it ranks by what it explains
+    #: with the calibration unbent. Off by default: measured on consumed cases only
+    #: (docs/diagnosis.md, *Screening*).
+    screen_moves_nominal: bool = False
     #: Points of the coarse scan over a candidate's own parameters before its local fits,
     #: per parameter of the candidate (at most :attr:`scan_points_max`). The closed loop's
     #: gap is rugged where stick-slip makes the response chaotic: on a dwell case the good
