@@ -253,7 +253,7 @@ class DiagnosisSettings:
     #: gap). A calibration bent to stand in for a missing effect is then undone to first
     #: order at screening cost, so the candidate that made it ranks by what it explains
     #: with the calibration unbent. Off by default: measured on consumed cases only
-    #: (docs/diagnosis.md, *Screening*).
+    #: (docs/diagnosis.md, *Screening with the nominal free to move linearly*).
     screen_moves_nominal: bool = False
     #: Points of the coarse scan over a candidate's own parameters before its local fits,
     #: per parameter of the candidate (at most :attr:`scan_points_max`). The closed loop's
