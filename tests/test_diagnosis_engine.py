@@ -267,6 +267,28 @@ def test_batched_evaluations_equal_one_at_a_time(
     assert batched.n_evaluations == alone.n_evaluations
 
 
+COULOMB = "plant.dahl.coulomb_force_n"
+
+
+def _coulomb_ctx(manifest: Path, st: DiagnosisSettings) -> tuple[_Ctx, list[Experiment]]:
+    """A diagnosis context on a step case with the table's Coulomb force free (20–40 N,
+    prior 30.4 N) and calibrated, bent, to 27 N; two experiments train, the rest validate."""
+    man = load_manifest(manifest)
+    exps = [e for _, e in man.experiments()]
+    free = [(COULOMB, Param(name="f", unit="N", lower=20, upper=40, initial=30.4))]
+    ctx = _Ctx(
+        free=free,
+        set_free=lambda s, v: replace_paths(s, dict(v)),
+        folds=[(exps[:2], exps[2:])],
+        floor=1e-8,
+        st=st,
+        adapt=lambda s, e: s,
+        nominal=man.system(),
+        warm=[{COULOMB: 27.0}],
+    )
+    return ctx, exps
+
+
 def test_screening_fits_only_the_discrete_setting_that_starts_best(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -277,21 +299,8 @@ def test_screening_fits_only_the_discrete_setting_that_starts_best(
     result has the refined result's setting. When every start fails to simulate, every
     setting is fitted (and reports why)."""
     m = _case(tmp_path, Effects(computation_delay_samples=2), seed=5)
-    man = load_manifest(m)
-    exps = [e for _, e in man.experiments()]
-    nominal = man.system()
-    name = "plant.dahl.coulomb_force_n"
-    free = [(name, Param(name="f", unit="N", lower=20, upper=40, initial=30.4))]
-    ctx = _Ctx(
-        free=free,
-        set_free=lambda s, v: replace_paths(s, dict(v)),
-        folds=[(exps[:2], exps[2:])],
-        floor=1e-8,
-        st=FAST,
-        adapt=lambda s, e: s,
-        nominal=nominal,
-        warm=[{name: 27.0}],
-    )
+    ctx, exps = _coulomb_ctx(m, FAST)
+    nominal, free, name = ctx.nominal, ctx.free, COULOMB
     (cand,), _ = applicable_candidates(nominal, ["computation_delay"])
     assert cand.discrete == (1, 2, 3)
     chosen = ctx.best_start_setting(nominal, cand)
@@ -2441,27 +2450,14 @@ def test_screening_moves_the_held_nominal_by_its_linearised_best(tmp_path: Path)
     of it and the offset candidate to a smaller force than held; the fit's training gap is
     its model's and below the held one's. Off, the force stays where it was held."""
     m = _case(tmp_path, Effects(), seed=5)
-    man = load_manifest(m)
-    exps = [e for _, e in man.experiments()]
-    nominal = man.system()
-    name = "plant.dahl.coulomb_force_n"
-    assert nominal.plant.dahl.coulomb_force_n == pytest.approx(30.4)
-    free = [(name, Param(name="f", unit="N", lower=20, upper=40, initial=30.4))]
-    (cand,), _ = applicable_candidates(nominal, ["offset_force"])
-    extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
+    name = COULOMB
     fits = {}
     for moves in (False, True):
-        st = dc.replace(FAST, screen_moves_nominal=moves)
-        ctx = _Ctx(
-            free=free,
-            set_free=lambda s, v: replace_paths(s, dict(v)),
-            folds=[(exps[:2], exps[2:])],
-            floor=1e-8,
-            st=st,
-            adapt=lambda s, e: s,
-            nominal=nominal,
-            warm=[{name: 27.0}],
-        )
+        ctx, exps = _coulomb_ctx(m, dc.replace(FAST, screen_moves_nominal=moves))
+        nominal = ctx.nominal
+        assert nominal.plant.dahl.coulomb_force_n == pytest.approx(30.4)
+        (cand,), _ = applicable_candidates(nominal, ["offset_force"])
+        extra = [(f"{cand.name}.{p.name}", p) for p in cand.params]
         f, prob = ctx._fit_held(nominal, extra, cand.apply, {name: 27.0}, exps[:2], 1, None, 1, 1)
         assert prob.projection is None  # taken off again after the fit
         assert f.train_rms_m == pytest.approx(rms_of(prob.residuals(f.system, exps[:2])), rel=1e-12)
