@@ -189,11 +189,14 @@ class DiagnosisSettings:
     #: screened pooled validation gap is more than this many times the model before's
     #: (:func:`~nanostage.diagnosis.loop.hopeless_lag_refits`; ``math.inf`` refits every
     #: one). Those refits undo a calibration bent to stand in for a lag, which costs a lag
-    #: candidate tens of per cent in screening, not a factor of ten: on a consumed
-    #: independent no-effect case both delays screened at 21–23 times the gap (a
-    #: one-sample delay in a loop without one), refitted at 37–42 times, and cost 40 s each
-    #: of a 407 s diagnosis (under load).
-    lag_refit_max_gap_ratio: float = 10.0
+    #: candidate tens of per cent in screening, not a factor of three. On six consumed
+    #: independent cases screened again (no effect, amplifier lag, compliance, offset,
+    #: asymmetry, dwell) the hidden lags screened at a smaller gap than before, backlash,
+    #: compliance and amplifier lag within 2.2 times it everywhere, and the delays (a
+    #: one-sample delay added to a loop without one) at 1.6–1.8 times on one case and 3.5
+    #: to 60 times on the others; on the offset case the delays, refitted at 6.6–7 times,
+    #: cost about a fifth of a 396 s diagnosis (their refits and cross-judging).
+    lag_refit_max_gap_ratio: float = 3.0
     #: Break a tie by the Occam factor (:func:`log_occam_factor`): among the significant
     #: candidates the validation data cannot tell from the best (:func:`indistinguishable`),
     #: select the one whose own parameters the data pin down most within their bounds (the
