@@ -275,6 +275,16 @@ def test_report_names_the_signature_chi_square_of_a_tie() -> None:
         "signature χ² against the measured marks: `offset_force` 2.5, "
         "`asymmetric_friction` 41" in md
     )
+    # Without the margin (reports before it was recorded) the last stage is named.
+    assert "selected by the larger Occam factor" in md
+    # With it: the marks left the offset alone in the tie (41 > 2.5 + 9.21), and they,
+    # not the Occam factor, decided; within the margin the Occam factor decided.
+    report["tie_signatures"][0]["margin"] = 9.21
+    md = markdown_report(report)
+    assert "selected by these marks (the others beyond the margin)" in md
+    assert "Occam" not in md
+    report["tie_signatures"][0]["distances"]["asymmetric_friction"] = 11.0
+    assert "selected by the larger Occam factor" in markdown_report(report)
     # No distances for the round: nothing said about signatures.
     report["tie_signatures"] = [{"round": 2, "distances": {"a": 1.0, "b": 2.0}}]
     assert "signature χ²" not in markdown_report(report)

@@ -583,18 +583,37 @@ def _extra_refit_lines(refits: Any) -> list[str]:
     return out
 
 
-def _tie_signatures(report: Mapping[str, Any], effect: str) -> str:
-    """The signature χ² of the candidates tied with a selected ``effect`` (its round's
-    entry of ``tie_signatures``), in words; empty without one."""
+def _tie_entry(report: Mapping[str, Any], effect: str) -> Mapping[str, Any] | None:
+    """The ``tie_signatures`` entry of the round that selected ``effect``, or None."""
     sel = report.get("selected") or []
     rounds = report.get("tie_signatures") or []
     if effect not in sel or not isinstance(rounds, list | tuple):
-        return ""
+        return None
     rnd = list(sel).index(effect) + 1
-    d = next(
-        (r.get("distances") for r in rounds if isinstance(r, Mapping) and r.get("round") == rnd),
+    return next(
+        (r for r in rounds if isinstance(r, Mapping) and r.get("round") == rnd),
         None,
     )
+
+
+def _settled_by_marks(report: Mapping[str, Any], effect: str) -> bool:
+    """Whether the signature judge left the selected ``effect`` alone in its tie: every
+    other candidate's χ² beyond the smallest by more than the round's ``margin``."""
+    entry = _tie_entry(report, effect)
+    d = None if entry is None else entry.get("distances")
+    margin = None if entry is None else entry.get("margin")
+    if not isinstance(d, Mapping) or effect not in d or not isinstance(margin, int | float):
+        return False
+    closest = min(float(v) for v in d.values())
+    others = [float(v) for k, v in d.items() if k != effect]
+    return bool(others) and all(v > closest + margin for v in others)
+
+
+def _tie_signatures(report: Mapping[str, Any], effect: str) -> str:
+    """The signature χ² of the candidates tied with a selected ``effect`` (its round's
+    entry of ``tie_signatures``), in words; empty without one."""
+    entry = _tie_entry(report, effect)
+    d = None if entry is None else entry.get("distances")
     if not isinstance(d, Mapping) or len(d) < 2:
         return ""
     parts = ", ".join(
@@ -773,7 +792,9 @@ def markdown_report(
                         + " (see the advice)"
                         + _tie_signatures(report, s)
                         + (
-                            "; selected by the larger Occam factor (its parameters "
+                            "; selected by these marks (the others beyond the margin)"
+                            if _settled_by_marks(report, s)
+                            else "; selected by the larger Occam factor (its parameters "
                             "pinned down to a larger share of their bounds)"
                             if report.get("tie_break") == "occam_factor"
                             else (

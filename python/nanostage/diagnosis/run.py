@@ -969,9 +969,10 @@ def assemble_report(
         "ranking": st.ranking,
         "significance": st.significance,
         "tie_break": "occam_factor" if st.occam_tie_break else "validation_gap",
-        # Per round with a tie: the signature χ² of each tied candidate (the judge's).
+        # Per round with a tie: the signature χ² of each tied candidate (the judge's) and
+        # the margin within which a candidate stayed in the tie.
         "tie_signatures": [
-            {"round": i + 1, "distances": dict(d)}
+            {"round": i + 1, "distances": dict(d), "margin": st.signature_margin}
             for i, d in enumerate(out.get("signature_distances") or [])
             if d
         ],
