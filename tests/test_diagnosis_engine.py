@@ -2391,8 +2391,11 @@ def test_a_cross_judged_tie_is_broken_on_the_rounds_own_fits(
     fold_systems: list[int] = []
     round_systems: list[int] = []
 
+    lp_pools: list[Any] = []
+
     def all_tied(ctx: Any, current: Any, fits: Any, pool: Any) -> list[CandidateResult]:
         round_systems.extend(id(r.fit.system) for _, r in pool)
+        lp_pools.append(pool)
         out = real(ctx, current, fits, pool)
         fold_systems.extend(id(r.fit.system) for r in out)
         first = out[0]
@@ -2402,9 +2405,14 @@ def test_a_cross_judged_tie_is_broken_on_the_rounds_own_fits(
     seen: list[list[int]] = []
     real_tie = SignatureJudge.tie_chi_squares
 
-    def record(self: SignatureJudge, systems: Any) -> list[tuple[float, int]]:
+    bare: list[list[Any]] = []
+
+    def record(
+        self: SignatureJudge, systems: Any, without: Any = None
+    ) -> tuple[list[tuple[float, int]], list[str]]:
         seen.append([id(x) for x in systems])
-        return real_tie(self, systems)
+        bare.append(list(without))
+        return real_tie(self, systems, without)
 
     monkeypatch.setattr(lp, "_cross_judge", all_tied)
     monkeypatch.setattr(SignatureJudge, "tie_chi_squares", record)
@@ -2414,6 +2422,23 @@ def test_a_cross_judged_tie_is_broken_on_the_rounds_own_fits(
     assert d.report["selected"] and seen and len(seen[-1]) >= 2
     assert set(seen[-1]) <= set(round_systems)
     assert not set(seen[-1]) & set(fold_systems)
+    # Each tied model is judged against itself with its effect taken out: the nominal
+    # model (no effect, no asymmetry) at the candidate's own free values; the asymmetry's
+    # own model has one.
+    from nanostage.config import field_paths, get_path
+
+    def asymmetries(system: Any) -> list[float]:
+        return [get_path(system, p) for p in field_paths(system) if p.endswith("asymmetry")]
+
+    tied_systems = {id(r.fit.system): r.fit.system for _, r in lp_pools[-1]}
+    assert len(bare[-1]) == len(seen[-1])
+    assert any(any(a != 0.0 for a in asymmetries(tied_systems[i])) for i in seen[-1])
+    for b in bare[-1]:
+        assert b.effects == Effects()
+        assert asymmetries(b) and all(a == 0.0 for a in asymmetries(b))
+    entry = d.report["tie_signatures"][-1]
+    measured = d.report["signatures"]["measured"]
+    assert isinstance(entry["marks"], list) and set(entry["marks"]) <= set(measured)
 
 
 def test_the_round_selects_by_the_cross_judged_results(

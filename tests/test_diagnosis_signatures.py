@@ -213,6 +213,57 @@ def test_tie_chi_squares_scale_each_feature_by_its_closest_miss() -> None:
     assert tie_chi_squares(measured, [a])[0][0] == pytest.approx(2.25)
 
 
+def test_effect_marks_are_the_features_a_tied_effect_moves() -> None:
+    from nanostage.diagnosis.signatures import effect_marks, tie_chi_squares
+
+    measured = {
+        "ramp_level_v": Feature(0.30, 0.001),
+        "hold_amplitude_m": Feature(6.0e-7, 2.0e-8),
+        "reversal_lag_m": Feature(1.0e-6, 1.0e-7),
+    }
+    # A backlash and an amplifier lag tied: each refit left the shared sliding friction at
+    # another level (0.20 and 0.29 V), which neither effect moves (the same level with the
+    # effect taken out); the backlash makes the measured hunting cycle (absent without it)
+    # and a reversal lag (4σ from its bare model's); the lag moves nothing beyond 3σ and
+    # hunts a little smaller than measured (4.2σ).
+    backlash = {
+        "ramp_level_v": Feature(0.20, 0.001),
+        "hold_amplitude_m": Feature(6.0e-7, 2.0e-8),
+        "reversal_lag_m": Feature(1.0e-6, 1.0e-7),
+    }
+    backlash_bare = {
+        "ramp_level_v": Feature(0.20, 0.001),
+        "reversal_lag_m": Feature(0.43e-6, 1.0e-7),
+    }
+    lag = {
+        "ramp_level_v": Feature(0.29, 0.001),
+        "hold_amplitude_m": Feature(4.8e-7, 2.0e-8),
+        "reversal_lag_m": Feature(1.0e-6, 1.0e-7),
+    }
+    lag_bare = {
+        "ramp_level_v": Feature(0.29, 0.001),
+        "hold_amplitude_m": Feature(4.7e-7, 2.0e-8),
+        "reversal_lag_m": Feature(0.9e-6, 1.0e-7),
+    }
+    marks = effect_marks([backlash, lag], [backlash_bare, lag_bare])
+    assert marks == ["hold_amplitude_m", "reversal_lag_m"]
+    hunting = (1.2e-7 / math.hypot(2e-8, 2e-8)) ** 2  # 18: the lag's miss of the cycle
+    # On all features the ramp level's coin toss decides: the backlash's refit missed it
+    # by 100σ against the lag's 10σ (10 000 and 100, scaled by the closest: 100 and 1).
+    (xb, _), (xl, _) = tie_chi_squares(measured, [backlash, lag])
+    assert (xb, xl) == (pytest.approx(100.0), pytest.approx(1.0 + hunting))
+    # On the marks the effects make, the cycle does: the backlash reproduces it.
+    (xb, nb), (xl, nl) = tie_chi_squares(measured, [backlash, lag], marks)
+    assert (nb, nl) == (2, 2)
+    assert (xb, xl) == (pytest.approx(0.0), pytest.approx(hunting))
+    assert xl > xb + 9.21
+    # No effect moves anything: no marks, every model at χ² 0 (the tie stays a tie).
+    assert effect_marks([lag_bare], [lag_bare]) == []
+    assert tie_chi_squares(measured, [lag, backlash], []) == [(0.0, 0), (0.0, 0)]
+    with pytest.raises(ValueError, match="one of each per tied model"):
+        effect_marks([lag], [])
+
+
 def test_judge_gives_the_generating_model_distance_zero_and_an_offset_force_more() -> None:
     from nanostage import presets
     from nanostage.diagnosis.candidates import applicable_candidates
@@ -285,6 +336,14 @@ def test_report_names_the_signature_chi_square_of_a_tie() -> None:
     assert "Occam" not in md
     report["tie_signatures"][0]["distances"]["asymmetric_friction"] = 11.0
     assert "selected by the larger Occam factor" in markdown_report(report)
+    # The marks the judge judged on (the features the tied effects move) are named.
+    report["tie_signatures"][0]["marks"] = ["ramp_bias_v", "rest_command_mean_v"]
+    assert (
+        "against the measured marks on the marks the tied effects make (`ramp_bias_v`, "
+        "`rest_command_mean_v`)" in markdown_report(report)
+    )
+    report["tie_signatures"][0]["marks"] = []
+    assert "the tied effects make (none)" in markdown_report(report)
     # No distances for the round: nothing said about signatures.
     report["tie_signatures"] = [{"round": 2, "distances": {"a": 1.0, "b": 2.0}}]
     assert "signature χ²" not in markdown_report(report)

@@ -185,14 +185,20 @@ class _Ctx:
             # The free nominal parameters first, then the effects selected so far (with
             # their fitted values), then the candidate: an effect may depend on a free
             # parameter (e.g. a drive-side mass as a ratio of the table mass).
-            s = self.set_free(
-                self.nominal, {n: v for (n, _), v in zip(self.free, values[:nf], strict=True)}
-            )
-            for cand, vals in self.selected_effects:
-                s = cand.apply(s, vals)
+            s = self.model_before({n: v for (n, _), v in zip(self.free, values[:nf], strict=True)})
             return apply_extra(s, values[nf:])
 
         return build
+
+    def model_before(self, free_values: Mapping[str, float]) -> System:
+        """The model before a candidate (the nominal model with the effects selected so
+        far) at the free nominal parameters ``free_values`` (those missing: the first
+        fold's warm values)."""
+        values = {**(self.warm[0] if self.warm else {}), **free_values}
+        s = self.set_free(self.nominal, values)
+        for cand, vals in self.selected_effects:
+            s = cand.apply(s, vals)
+        return s
 
     def best_start_setting(
         self, base: System, cand: Candidate, warm_only: bool = False
@@ -518,13 +524,18 @@ def diagnose_experiments(
         st.threads,
     )
     signature_distances: list[dict[str, float]] = []
+    signature_marks: list[list[str]] = []
     # Per round that refined candidates beyond the usual refits: why, and which.
     extra_refits: list[dict[str, Any]] = []
 
     def signature_chi_squares(tied: Sequence[CandidateResult]) -> list[tuple[float, int]]:
-        out = judge.tie_chi_squares([r.fit.system for r in tied])
-        for r, (chi2, _) in zip(tied, out, strict=True):
-            signature_distances[-1][r.effect] = chi2
+        # Judged on the marks the tied effects make: each tied model against itself with
+        # its effect taken out (its own refit of the free nominal parameters kept).
+        bare = [ctx.model_before(_free_values(r.fit, free)) for r in tied]
+        out, marks = judge.tie_chi_squares([r.fit.system for r in tied], bare)
+        # The round's record is its last judgement: the one whose pick stands.
+        signature_distances[-1] = {r.effect: chi2 for r, (chi2, _) in zip(tied, out, strict=True)}
+        signature_marks[-1] = marks
         return out
 
     print_progress(
@@ -721,6 +732,7 @@ def diagnose_experiments(
         if rnd == 0:
             pool_names = [r.effect for r in results]
         signature_distances.append({})
+        signature_marks.append([])
         best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         while best is not None and best.effect in held:
             # A selected effect is fitted with the free parameters too: a winner known from
@@ -759,6 +771,9 @@ def diagnose_experiments(
             ) -> list[tuple[float, int]]:
                 return signature_chi_squares([own.get(r.effect, r) for r in tied])
 
+            # The cross-judged pick stands: a tie of the validation round before it no
+            # longer counts.
+            signature_distances[-1], signature_marks[-1] = {}, []
             pick = pick_winner(judged, st, on_own_fits, st.signature_margin)
             best = None if pick is None else next(r for r in results if r.effect == pick.effect)
             if pick is not None:
@@ -802,9 +817,11 @@ def diagnose_experiments(
         "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
         "signature_judge": judge,
-        # Per round, the signature χ² of each candidate a tie put before the judge (the last
-        # evaluation of each, after any refit).
+        # Per round, the signature χ² of each candidate its deciding tie put before the
+        # judge (the last judgement: after any refit, the cross-judged one where there is).
         "signature_distances": signature_distances,
+        # Per round, the marks that judgement judged on (the features the tied effects move).
+        "signature_marks": signature_marks,
         "extra_refits": extra_refits,
         "cache": ctx.cache,
         "simulations": {

@@ -619,8 +619,16 @@ def _tie_signatures(report: Mapping[str, Any], effect: str) -> str:
     parts = ", ".join(
         f"`{_md_escape(str(k))}` {float(v):.3g}" for k, v in sorted(d.items(), key=lambda kv: kv[1])
     )
+    marks = entry.get("marks") if entry is not None else None
+    on = (
+        " on the marks the tied effects make ("
+        + (", ".join(f"`{_md_escape(str(m))}`" for m in marks) or "none")
+        + ")"
+        if isinstance(marks, list | tuple)
+        else ""
+    )
     return (
-        f"; signature χ² against the measured marks: {parts} (each mark in units of the "
+        f"; signature χ² against the measured marks{on}: {parts} (each mark in units of the "
         "closest tied model's miss of it; those within `signature_margin` of the smallest "
         "stay in the tie)"
     )

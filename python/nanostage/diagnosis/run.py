@@ -33,6 +33,7 @@ parameters at their bounds) and ``timing_s``.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -972,8 +973,19 @@ def assemble_report(
         # Per round with a tie: the signature χ² of each tied candidate (the judge's) and
         # the margin within which a candidate stayed in the tie.
         "tie_signatures": [
-            {"round": i + 1, "distances": dict(d), "margin": st.signature_margin}
-            for i, d in enumerate(out.get("signature_distances") or [])
+            {
+                "round": i + 1,
+                "distances": dict(d),
+                "margin": st.signature_margin,
+                "marks": list(marks),
+            }
+            for i, (d, marks) in enumerate(
+                zip(
+                    out.get("signature_distances") or [],
+                    out.get("signature_marks") or itertools.repeat([]),
+                    strict=False,
+                )
+            )
             if d
         ],
         # Per round whose lag family was refitted beyond the usual refits: why.

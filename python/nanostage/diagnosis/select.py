@@ -359,8 +359,9 @@ def pick_winner(
 
     With ``signature_chi_squares`` (the tied candidates → the χ² of each fitted model's
     simulated signature against the measured one and the number of features in it,
-    :func:`~nanostage.diagnosis.signatures.tie_chi_squares`: each feature in units of the
-    closest tied model's miss of it where that exceeds its errors) and
+    :func:`~nanostage.diagnosis.signatures.tie_chi_squares`: over the marks the tied
+    effects make, each in units of the closest tied model's miss of it where that exceeds
+    its errors) and
     ``signature_margin`` > 0, the tied candidates are first narrowed to those whose χ² lies
     within ``signature_margin`` of the closest one. What the gap cannot tell apart, the
     traces' limit cycles, rest commands, ramp commands, breakaways and reversal lags may.

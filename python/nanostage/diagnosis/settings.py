@@ -209,10 +209,14 @@ class DiagnosisSettings:
     #: Narrow a tie by the traces' signatures first (:mod:`~nanostage.diagnosis.signatures`:
     #: limit cycles in holds, the command at rest and on ramps per direction, breakaway
     #: against rest): the tied candidates whose simulated signature lies within this χ² of
-    #: the closest one to the measured stay, and the Occam factor decides among them. Each
-    #: feature counts in units of the closest tied model's miss of it where that exceeds
-    #: its errors (:func:`~nanostage.diagnosis.signatures.tie_chi_squares`): a mark every
-    #: model misses alike is a shared model error, not a difference between them. The
+    #: the closest one to the measured stay, and the Occam factor decides among them. Only
+    #: the marks the tied effects make count (:func:`~nanostage.diagnosis.signatures.
+    #: effect_marks`: a feature some tied model moves beyond 3 standard errors against
+    #: itself with its effect taken out); a feature none moves differs between them only
+    #: by each refit's compromise on the shared nominal parameters. Each feature counts in
+    #: units of the closest tied model's miss of it where that exceeds its errors
+    #: (:func:`~nanostage.diagnosis.signatures.tie_chi_squares`): a mark every model
+    #: misses alike is a shared model error, not a difference between them. The
     #: default 9.21 = 2·ln 100, a likelihood ratio of 100 ("decisive" on Jeffreys' scale):
     #: a tie the gap cannot break is broken only by a clear mark. 0 turns it off.
     signature_margin: float = 9.21

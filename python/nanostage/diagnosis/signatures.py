@@ -76,6 +76,7 @@ __all__ = [
     "SignatureJudge",
     "chi_square",
     "distance",
+    "effect_marks",
     "misses",
     "signatures_of",
     "tie_chi_squares",
@@ -426,18 +427,66 @@ class SignatureJudge:
         """:func:`chi_square` of ``system``'s simulated signature against the measured."""
         return chi_square(self.measured, self.simulated(system))
 
-    def tie_chi_squares(self, systems: Sequence[System]) -> list[tuple[float, int]]:
-        """:func:`tie_chi_squares` of the tied ``systems``' simulated signatures."""
-        return tie_chi_squares(self.measured, [self.simulated(s) for s in systems])
+    def tie_chi_squares(
+        self, systems: Sequence[System], without: Sequence[System] | None = None
+    ) -> tuple[list[tuple[float, int]], list[str]]:
+        """:func:`tie_chi_squares` of the tied ``systems``' simulated signatures, over the
+        marks their effects make (:func:`effect_marks`; all features without ``without``,
+        each tied system with its effect taken out), and those marks."""
+        sims = [self.simulated(s) for s in systems]
+        if without is None:
+            marks = sorted(self.measured)
+        else:
+            bare = [self.simulated(s) for s in without]
+            marks = effect_marks(sims, bare)
+        return tie_chi_squares(self.measured, sims, marks), marks
+
+
+def effect_marks(
+    simulated: Sequence[Mapping[str, Feature]],
+    without: Sequence[Mapping[str, Feature]],
+    z_min: float = 3.0,
+) -> list[str]:
+    """The features that the effects of tied models make: those on which some model's
+    simulated signature (``simulated``) differs from its own with the effect taken out
+    (``without``: the same fitted nominal parameters) by more than ``z_min`` combined
+    standard errors, or which only one of the two has (a limit cycle the effect starts or
+    stops). Sorted by name.
+
+    A tie is between effects; every tied model also carries its own refit of the free
+    nominal parameters. A feature none of the effects moves (the sliding friction's ramp
+    command, for a tie of a backlash with an amplifier lag) differs between the models only
+    by where each refit's compromise between the channels left the shared friction law: a
+    coin toss between them, not a mark of either effect."""
+    if len(simulated) != len(without):
+        raise ValueError(
+            f"effect_marks: {len(simulated)} simulated signatures and {len(without)} "
+            "without the effect: expected one of each per tied model"
+        )
+    marks: set[str] = set()
+    for sim, bare in zip(simulated, without, strict=True):
+        for name in set(sim) | set(bare):
+            a, b = sim.get(name), bare.get(name)
+            if a is None or b is None:
+                marks.add(name)
+                continue
+            se = math.hypot(a.std_error, b.std_error)
+            diff = abs(a.value - b.value)
+            if (se > 0.0 and diff > z_min * se) or (se == 0.0 and diff > 0.0):
+                marks.add(name)
+    return sorted(marks)
 
 
 def tie_chi_squares(
-    measured: Mapping[str, Feature], simulated: Sequence[Mapping[str, Feature]]
+    measured: Mapping[str, Feature],
+    simulated: Sequence[Mapping[str, Feature]],
+    marks: Sequence[str] | None = None,
 ) -> list[tuple[float, int]]:
     """The χ² of each of several models' simulated signatures against the measured one, for
     a tie between them, and the number of features each sums over: each feature's term
     ``(measured − simulated)² / (se_measured² + se_simulated²)`` divided by the smallest
-    term any of the models reaches on that feature where that exceeds 1.
+    term any of the models reaches on that feature where that exceeds 1. ``marks``: the
+    features to judge on (:func:`effect_marks`; None: all).
 
     A mark that every one of the models misses by many standard errors is a mismatch the
     models share (a friction law of another shape than the truth's moves every model's
@@ -448,13 +497,18 @@ def tie_chi_squares(
     ratio for all the features (the closest model's χ² per feature) would let a shared
     miss of a millivolt-precise ramp level drown a limit cycle that tells the models apart.
     """
-    terms = [_chi_square_terms(measured, sim) for sim in simulated]
+    keep = None if marks is None else set(marks)
+    terms = [
+        {k: z2 for k, z2 in _chi_square_terms(measured, sim).items() if keep is None or k in keep}
+        for sim in simulated
+    ]
     ratio: dict[str, float] = {}
     for row in terms:
         for name, z2 in row.items():
             ratio[name] = min(ratio.get(name, math.inf), z2)
     return [
-        (sum(z2 / max(1.0, ratio[name]) for name, z2 in row.items()), len(row)) for row in terms
+        (sum((z2 / max(1.0, ratio[name]) for name, z2 in row.items()), 0.0), len(row))
+        for row in terms
     ]
 
 
