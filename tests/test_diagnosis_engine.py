@@ -59,6 +59,7 @@ from nanostage.diagnosis.loop import (
     crossfit_folds,
     crossfit_models,
     experiment_class,
+    experiment_scale,
     hopeless_lag_refits,
     mark_effects,
     refine_names,
@@ -2292,6 +2293,41 @@ def test_stratified_folds_spread_each_class(classes: list[int], k: int) -> None:
         assert max(sum(classes[i] == c for i in f) for f in folds) <= -(-m // kk)
 
 
+@given(
+    classes=st_h.lists(st_h.integers(0, 2), min_size=2, max_size=16),
+    k=st_h.integers(0, 6),
+    data=st_h.data(),
+)
+@settings(max_examples=200, deadline=None)
+def test_folds_dealt_largest_first_keep_the_largest_of_each_class_apart(
+    classes: list[int], k: int, data: st_h.DataObject
+) -> None:
+    """With scales, each class is dealt largest first: the folds are stratified as without
+    them (the same sizes per class and fold), and a class's ``k`` largest experiments are
+    held out in ``k`` different folds, so every fold trains on one of the two largest."""
+    n = len(classes)
+    scales = data.draw(st_h.lists(st_h.floats(0.0, 1e-3, allow_nan=False), min_size=n, max_size=n))
+    folds = cross_judge_split(n, k, classes, scales)
+    kk = max(2, min(k, n))
+    assert sorted(i for f in folds for i in f) == list(range(n))
+    plain = cross_judge_split(n, k, classes)
+    for c in set(classes):
+        per_fold = sorted(sum(classes[i] == c for i in f) for f in folds)
+        assert per_fold == sorted(sum(classes[i] == c for i in f) for f in plain)
+        members = sorted((i for i in range(n) if classes[i] == c), key=lambda i: -scales[i])
+        top = members[:kk]
+        fold_of = {i: j for j, f in enumerate(folds) for i in f}
+        assert len({fold_of[i] for i in top}) == len(top)
+
+
+def test_experiment_scale_is_the_largest_reference_change_per_sample() -> None:
+    assert experiment_scale([0.0, 0.0, 1e-4, 1e-4]) == pytest.approx(1e-4)  # a step
+    ramp = np.concatenate([np.zeros(5), np.arange(1, 11) * 2e-7, np.full(5, 2e-6)])
+    assert experiment_scale(ramp) == pytest.approx(2e-7)  # a ramp: speed × period
+    assert experiment_scale([3e-3] * 4) == 0.0
+    assert experiment_scale([1.0]) == 0.0
+
+
 def test_the_independent_design_folds_hold_out_one_ramp_each() -> None:
     """The independent family's twelve experiments (training ones, then validation ones)
     fall into ramps, micro-steps and steps by their references alone, and each of the three
@@ -2314,6 +2350,20 @@ def test_the_independent_design_folds_hold_out_one_ramp_each() -> None:
         1,
     ]
     assert max(sum(kinds[i] == "ramp" for i in f) for f in cross_judge_split(12, 3)) == 2
+    # Dealt largest first, no fold holds out both large steps (1 mm and 0.5 mm) nor trains
+    # without both of the two fastest ramps; by class alone one fold held out the 1 mm and
+    # 0.5 mm steps and the 1 mm/s ramp, and its refits went unstable on that ramp.
+    scales = [experiment_scale(e.reference_m) for e in exps]
+    names = [e.name for e in exps]
+    big_steps = {"exp01_step", "exp02_step"}
+    fast_ramps = {"exp07_ramp", "exp08_ramp"}
+    plain = [{names[i] for i in f} for f in cross_judge_split(12, 3, classes)]
+    assert any(big_steps <= f for f in plain)
+    for f in cross_judge_split(12, 3, classes, scales):
+        held = {names[i] for i in f}
+        assert not big_steps <= held and not fast_ramps <= held
+    dealt = cross_judge_split(12, 3, classes, scales)
+    assert [sum(kinds[i] == "ramp" for i in f) for f in dealt] == [1, 1, 1]
 
 
 def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
@@ -2333,7 +2383,8 @@ def test_cross_judging_refits_each_candidate_without_each_held_out_experiment(
     refs = {spec.name: e.reference_m for spec, e in man.experiments()}
     count_m = presets.seed(1e-3).encoder.count_m
     classes = [experiment_class(refs[n], count_m) for n in order]
-    held_out = [{order[i] for i in f} for f in cross_judge_split(len(order), 2, classes)]
+    scales = [experiment_scale(refs[n]) for n in order]
+    held_out = [{order[i] for i in f} for f in cross_judge_split(len(order), 2, classes, scales)]
     names = set(order)
     fold_sets = [frozenset(names - h) for h in held_out]
     seen: list[tuple[frozenset[str], int]] = []

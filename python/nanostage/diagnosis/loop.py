@@ -1214,17 +1214,40 @@ def _warm_params(cand: Candidate, values: Sequence[float]) -> list[tuple[str, Pa
     ]
 
 
-def cross_judge_split(n: int, k: int, classes: Sequence[int] | None = None) -> list[list[int]]:
+def cross_judge_split(
+    n: int,
+    k: int,
+    classes: Sequence[int] | None = None,
+    scales: Sequence[float] | None = None,
+) -> list[list[int]]:
     """The held-out indices of each fold of :func:`_cross_judge` over ``n`` experiments;
     every experiment is held out once, and ``k`` is clipped to [2, n]. Without ``classes``
     fold ``j`` holds out ``j, j + k, j + 2k, …`` (round robin). With ``classes`` (one per
     experiment, :func:`experiment_class`) the experiments are dealt round robin class by
     class, the count running on from one class to the next: each fold holds out at most
     ``⌈m/k⌉`` of a class of ``m``, so that no fold trains on one ramp while it judges the
-    other two (stratified folds)."""
+    other two (stratified folds). With ``scales`` too (one per experiment,
+    :func:`experiment_scale`) each class is dealt largest first: its ``k`` largest are held
+    out in different folds, so that every fold trains on one of the largest of each kind
+    and no fold's fit predicts its held-out experiments beyond the motions it was fitted on
+    (the same order as without them where the scales are equal)."""
     k = max(2, min(k, n))
-    order = list(range(n)) if classes is None else sorted(range(n), key=lambda i: classes[i])
+    if classes is None:
+        order = list(range(n))
+    elif scales is None:
+        order = sorted(range(n), key=lambda i: classes[i])
+    else:
+        order = sorted(range(n), key=lambda i: (classes[i], -scales[i]))
     return [sorted(order[j::k]) for j in range(k)]
+
+
+def experiment_scale(reference_m: npt.ArrayLike) -> float:
+    """The size of the motion an experiment asks for, for the order of
+    :func:`cross_judge_split`: the largest change of its reference from one sample to the
+    next, m (a step's height, a ramp's speed times the sample period, a micro-step's
+    counts); 0 for a constant reference."""
+    d = np.abs(np.diff(np.asarray(reference_m, dtype=np.float64)))
+    return float(np.max(d)) if d.size else 0.0
 
 
 def experiment_class(reference_m: npt.ArrayLike, count_m: float) -> int:
@@ -1260,6 +1283,7 @@ def _cross_judge(
         len(exps),
         st.cross_judge_folds,
         [experiment_class(e.reference_m, current.encoder.count_m) for e in exps],
+        [experiment_scale(e.reference_m) for e in exps],
     )
     folds = [
         ([e for i, e in enumerate(exps) if i not in out], [exps[i] for i in out]) for out in held
