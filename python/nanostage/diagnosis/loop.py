@@ -1228,9 +1228,10 @@ def cross_judge_split(
     ``⌈m/k⌉`` of a class of ``m``, so that no fold trains on one ramp while it judges the
     other two (stratified folds). With ``scales`` too (one per experiment,
     :func:`experiment_scale`) each class is dealt largest first: its ``k`` largest are held
-    out in different folds, so that every fold trains on one of the largest of each kind
-    and no fold's fit predicts its held-out experiments beyond the motions it was fitted on
-    (the same order as without them where the scales are equal)."""
+    out in different folds, so that every fold trains on one of the two largest of each
+    kind that has two, and no fold predicts a kind's large motions from its small ones
+    alone (the largest is still predicted from the next; the same order as without
+    ``scales`` where they are equal)."""
     k = max(2, min(k, n))
     if classes is None:
         order = list(range(n))
