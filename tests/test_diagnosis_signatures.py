@@ -216,35 +216,22 @@ def test_tie_chi_squares_scale_each_feature_by_its_closest_miss() -> None:
 def test_effect_marks_are_the_features_a_tied_effect_moves() -> None:
     from nanostage.diagnosis.signatures import effect_marks, tie_chi_squares
 
-    measured = {
-        "ramp_level_v": Feature(0.30, 0.001),
-        "hold_amplitude_m": Feature(6.0e-7, 2.0e-8),
-        "reversal_lag_m": Feature(1.0e-6, 1.0e-7),
-    }
+    errors = {"ramp_level_v": 0.001, "hold_amplitude_m": 2.0e-8, "reversal_lag_m": 1.0e-7}
+
+    def sig(**values: float) -> dict[str, Feature]:
+        """A signature of the given features (ramp level, hold amplitude, reversal lag)."""
+        return {name: Feature(v, errors[name]) for name, v in values.items()}
+
+    measured = sig(ramp_level_v=0.30, hold_amplitude_m=6.0e-7, reversal_lag_m=1.0e-6)
     # A backlash and an amplifier lag tied: each refit left the shared sliding friction at
     # another level (0.20 and 0.29 V), which neither effect moves (the same level with the
     # effect taken out); the backlash makes the measured hunting cycle (absent without it)
     # and a reversal lag (4σ from its bare model's); the lag moves nothing beyond 3σ and
     # hunts a little smaller than measured (4.2σ).
-    backlash = {
-        "ramp_level_v": Feature(0.20, 0.001),
-        "hold_amplitude_m": Feature(6.0e-7, 2.0e-8),
-        "reversal_lag_m": Feature(1.0e-6, 1.0e-7),
-    }
-    backlash_bare = {
-        "ramp_level_v": Feature(0.20, 0.001),
-        "reversal_lag_m": Feature(0.43e-6, 1.0e-7),
-    }
-    lag = {
-        "ramp_level_v": Feature(0.29, 0.001),
-        "hold_amplitude_m": Feature(4.8e-7, 2.0e-8),
-        "reversal_lag_m": Feature(1.0e-6, 1.0e-7),
-    }
-    lag_bare = {
-        "ramp_level_v": Feature(0.29, 0.001),
-        "hold_amplitude_m": Feature(4.7e-7, 2.0e-8),
-        "reversal_lag_m": Feature(0.9e-6, 1.0e-7),
-    }
+    backlash = sig(ramp_level_v=0.20, hold_amplitude_m=6.0e-7, reversal_lag_m=1.0e-6)
+    backlash_bare = sig(ramp_level_v=0.20, reversal_lag_m=0.43e-6)
+    lag = sig(ramp_level_v=0.29, hold_amplitude_m=4.8e-7, reversal_lag_m=1.0e-6)
+    lag_bare = sig(ramp_level_v=0.29, hold_amplitude_m=4.7e-7, reversal_lag_m=0.9e-6)
     marks = effect_marks([backlash, lag], [backlash_bare, lag_bare])
     assert marks == ["hold_amplitude_m", "reversal_lag_m"]
     hunting = (1.2e-7 / math.hypot(2e-8, 2e-8)) ** 2  # 18: the lag's miss of the cycle
