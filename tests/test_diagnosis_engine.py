@@ -68,6 +68,7 @@ from nanostage.diagnosis.manifest import load_manifest
 from nanostage.diagnosis.objective import (
     SimulationCache,
     _best_shift,
+    autocorrelation_time,
     experiment_floors_m,
     experiment_kind,
     gap_residual,
@@ -1425,6 +1426,57 @@ def test_simulation_cache_looks_up_repeats_and_drops_the_least_recently_used() -
     assert cache.hits == 4
     with pytest.raises(ValueError, match="max_bytes"):
         SimulationCache(-1.0)
+
+
+def _tau_by_definition(r: np.ndarray, max_lag: int = 500) -> float:
+    """``1 + 2·Σρ(k)`` with one dot product per lag, summed while ρ > 0."""
+    x = r - r.mean()
+    var = float(x @ x)
+    tau = 1.0
+    for k in range(1, min(max_lag, len(x) // 2)):
+        rho = float(x[:-k] @ x[k:]) / var
+        if rho <= 0.0:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st_h.integers(min_value=4, max_value=3000),
+    phi=st_h.floats(min_value=-0.9, max_value=0.999),
+    seed=st_h.integers(min_value=0, max_value=2**31),
+    max_lag=st_h.sampled_from([2, 3, 50, 500]),
+)
+def test_autocorrelation_time_is_the_sum_of_its_definition(
+    n: int, phi: float, seed: int, max_lag: int
+) -> None:
+    """The FFT's lag products give the integrated autocorrelation time of one dot product
+    per lag, summed to the first lag where ρ ≤ 0, on AR(1) residuals of any memory."""
+    e = np.random.default_rng(seed).normal(size=n)
+    x = np.empty(n)
+    x[0] = e[0]
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    assert autocorrelation_time(x, max_lag) == pytest.approx(
+        _tau_by_definition(x, max_lag), rel=1e-9, abs=1e-9
+    )
+
+
+def test_autocorrelation_time_of_ar1_noise_and_degenerate_residuals() -> None:
+    """AR(1) with coefficient φ has ρ(k) = φᵏ, so τ = (1 + φ)/(1 − φ) (all lags kept); white
+    noise stops at its first negative ρ (τ ≈ 1); a constant or too short residual is 1."""
+    rng = np.random.default_rng(7)
+    n, phi = 400_000, 0.8
+    e = rng.normal(size=n)
+    x = np.empty(n)
+    x[0] = e[0] / math.sqrt(1.0 - phi**2)
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    assert autocorrelation_time(x) == pytest.approx((1 + phi) / (1 - phi), rel=0.05)
+    assert autocorrelation_time(rng.normal(size=n)) == pytest.approx(1.0, abs=0.02)
+    assert autocorrelation_time(np.full(100, 3.0)) == 1.0
+    assert autocorrelation_time(np.array([1.0, 2.0, 3.0])) == 1.0
 
 
 def test_a_backlash_of_open_flank_starts_against_the_flank_that_fits_the_trace() -> None:
