@@ -78,6 +78,7 @@ from scipy.optimize import least_squares
 from scipy.stats import qmc
 
 from ._core import ConfigError, SimulationError
+from .blas import single_threaded_blas
 from .config import DahlFriction, IntegratorOptions
 from .effects import Gms, PositionFriction, StaticFrictionMap
 from .fitting import (
@@ -980,6 +981,7 @@ def _covariance(
     return cov, se, status
 
 
+@single_threaded_blas()
 def fit_friction(
     data: FrictionData,
     model: str | ModelFamily = "lugre",

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ..blas import keep_one_blas_thread, single_threaded_blas
 from ..checks import executor_arg
 from ..config import System
 from ..experiment import Experiment
@@ -432,6 +433,7 @@ class _Ctx:
         return fits, np.array(ms), residuals, command, np.array(units)
 
 
+@single_threaded_blas()
 def diagnose_experiments(
     nominal: System,
     free: Sequence[tuple[str, Param]],
@@ -1064,6 +1066,7 @@ def _judge_task(
     a round). Top level, so that it pickles by reference."""
     import cloudpickle
 
+    keep_one_blas_thread()
     cands, now, ctx = cloudpickle.loads(shared)
     mb = ctx.st.simulation_cache_mb
     ctx = dataclasses.replace(ctx, cache=SimulationCache(mb * 1e6) if mb > 0 else None)
@@ -1115,6 +1118,7 @@ def crossfit_folds(n_train: int, n_validate: int, k: int) -> list[tuple[list[int
     return out
 
 
+@single_threaded_blas()
 def crossfit_models(
     nominal: System,
     free: Sequence[tuple[str, Param]],

@@ -18,6 +18,7 @@ from scipy.optimize import least_squares
 
 from .. import presets
 from .._core import __version__
+from ..blas import single_threaded_blas
 from ..config import ForceDrivePlant, System, get_path, replace_paths
 from ..experiment import Experiment
 from ..model_file import IdentifiedParameter, save_model
@@ -108,6 +109,7 @@ class OutputErrorFit:
     n_evaluations: int
 
 
+@single_threaded_blas()
 def output_error_fit(
     data: EmpsData,
     system: System | None = None,
