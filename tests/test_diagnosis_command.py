@@ -36,7 +36,7 @@ from nanostage.diagnosis.objective import (
     proportional_gain_v_per_m,
     simulate_readings_and_commands,
 )
-from nanostage.diagnosis.run import _setup, experiment_advice, unexplained_gap
+from nanostage.diagnosis.run import _setup, experiment_advice, lone_largest, unexplained_gap
 from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.settings import DiagnosisSettings
 from nanostage.diagnosis.traces import write_trace_csv
@@ -407,6 +407,48 @@ def test_advice_asks_for_the_command_ramps_and_micro_steps() -> None:
     )
     issues = " ".join(a["issue"] for a in experiment_advice([ramps], 2e-3, [], 0.05))
     assert "command_v" not in issues and "ramps" not in issues and "micro-step" not in issues
+
+
+def _design(name: str, ref: np.ndarray) -> Experiment:
+    """Readings of the reference, one count over it at the end (the count is read off them)."""
+    t = np.arange(len(ref)) * 1e-3
+    pos = np.round(ref / Q) * Q
+    pos[-5:] += Q
+    return Experiment(name=name, time_s=t, reference_m=ref, position_m=pos)
+
+
+def _ramp(name: str, speed_m_per_s: float) -> Experiment:
+    n = max(2, round(50e-6 / speed_m_per_s / 1e-3))
+    up = 2e-3 + speed_m_per_s * 1e-3 * np.arange(1, n + 1)
+    return _design(name, np.r_[np.full(20, 2e-3), up, np.full(50, up[-1])])
+
+
+def _step(name: str, height_m: float) -> Experiment:
+    return _design(name, np.r_[np.full(20, 2e-3), np.full(300, 2e-3 + height_m)])
+
+
+def test_advice_names_the_experiment_alone_at_the_largest_size_of_its_kind() -> None:
+    """Ramps at 20, 200 and 1000 µm/s: the fastest is alone at its size (5×), and judged on
+    every experiment it is predicted from slower ramps; steps of 0.1, 0.5 and 1 mm are not
+    (the next is half the largest: within the factor 2), nor a kind of one (a micro-step)."""
+    ramps = [_ramp(f"r{i}", v) for i, v in enumerate((20e-6, 200e-6, 1e-3))]
+    steps = [_step(f"s{i}", h) for i, h in enumerate((100e-6, 500e-6, 1e-3))]
+    micro = _step("m", 3 * Q)
+    alone = lone_largest(ramps + steps + [micro], Q)
+    assert [(e.name, kind, size) for e, kind, size, _ in alone] == [("r2", "ramp", "1 mm/s")]
+    assert alone[0][3] == pytest.approx(5.0)
+    # A second ramp at the top speed, or steps whose largest is 2.5 × the next: the ramp
+    # has a trained twin, the step is alone.
+    twin = _ramp("r3", 1e-3)
+    steps[1] = _step("s1", 400e-6)
+    alone = lone_largest([*ramps, twin, *steps], Q)
+    assert [(e.name, kind, size) for e, kind, size, _ in alone] == [("s2", "step", "1 mm")]
+    issues = [a["issue"] for a in experiment_advice(ramps + steps, 2e-3, [], 0.05)]
+    assert not any("the only" in i for i in issues)  # not cross-judged: nothing to say
+    advice = experiment_advice(ramps + steps, 2e-3, [], 0.05, cross_judged=True)
+    lone = [a for a in advice if "the only" in a["issue"]]
+    assert [a["issue"].split(" is the only")[0] for a in lone] == ["r2", "s2"]
+    assert "repeat r2, or add a second ramp at 1 mm/s" in lone[0]["experiment"]
 
 
 def test_benchmark_on_the_independent_family_writes_its_scores(

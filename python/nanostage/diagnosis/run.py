@@ -51,7 +51,7 @@ from ..output import check_output_dir, staged_output
 from .candidates import CANDIDATES, Candidate, Param, applicable_candidates
 from .fit import Fit, at_bounds
 from .gap import analyse_gap
-from .loop import crossfit_models, diagnose_experiments
+from .loop import crossfit_models, diagnose_experiments, experiment_class, experiment_scale
 from .manifest import Manifest, load_manifest
 from .objective import (
     MICRO_STEP_MAX_COUNTS,
@@ -225,6 +225,50 @@ def position_coverage(
     return inside / total if total else None
 
 
+#: The largest experiment of a kind is "alone at its size" when the next largest of that
+#: kind asks for a motion smaller by more than this factor (:func:`lone_largest`).
+LONE_LARGEST_FACTOR = 2.0
+
+
+def _length(x_m: float) -> str:
+    """A length in mm from 1 mm up, else in µm (three significant digits)."""
+    return f"{x_m * 1e3:.3g} mm" if x_m >= 1e-3 else f"{x_m * 1e6:.3g} µm"
+
+
+#: Names of the kinds of :func:`~.loop.experiment_class`.
+_KIND_NAMES = {0: "ramp", 1: "micro-step", 2: "step"}
+
+
+def lone_largest(
+    experiments: Sequence[Experiment], count_m: float | None
+) -> list[tuple[Experiment, str, str, float]]:
+    """The experiments alone at the largest size of their kind (:func:`~.loop.experiment_class`,
+    of two or more; the size is :func:`~.loop.experiment_scale`): the next largest of the kind
+    asks for a motion smaller by more than :data:`LONE_LARGEST_FACTOR`. Each with its kind's
+    name, its size in words (a ramp's speed, a move's largest step) and the factor.
+    Cross-judging holds each experiment out once (:func:`~.loop.cross_judge_split`), so such
+    an experiment is predicted by models refitted on smaller motions only."""
+    kinds: dict[int, list[tuple[float, Experiment]]] = {}
+    for e in experiments:
+        k = experiment_class(e.reference_m, count_m or 0.0)
+        kinds.setdefault(k, []).append((experiment_scale(e.reference_m), e))
+    out = []
+    for k, members in sorted(kinds.items()):
+        if len(members) < 2:
+            continue
+        members.sort(key=lambda m: -m[0])
+        (top, e), (nxt, _) = members[0], members[1]
+        if top <= 0.0 or top <= LONE_LARGEST_FACTOR * nxt:
+            continue
+        if k == 0:
+            dt = float(np.median(np.diff(e.time_s))) if len(e.time_s) > 1 else 0.0
+            size = _length(top / dt) + "/s" if dt > 0.0 else _length(top) + " per sample"
+        else:
+            size = _length(top)
+        out.append((e, _KIND_NAMES[k], size, top / nxt if nxt > 0.0 else math.inf))
+    return out
+
+
 def experiment_advice(
     experiments: Sequence[Experiment],
     lead_m: float | None,
@@ -237,6 +281,7 @@ def experiment_advice(
     ranking: str = "relative",
     selected: Sequence[CandidateResult] = (),
     p_value: float = 0.05,
+    cross_judged: bool = False,
 ) -> list[dict[str, Any]]:
     """What the experiments cannot reveal, and which experiment would. With ``folds``, also
     whether the validation experiments revisit positions their training experiments
@@ -250,7 +295,9 @@ def experiment_advice(
     selected effects' results, each from its round), whether an effect's relative
     significance rests on too few validation experiments above their noise floors for any
     test over them to reach the level it was judged at (its ``p_level``, at most ``p_value``:
-    :func:`~nanostage.diagnosis.select.too_few_to_test`)."""
+    :func:`~nanostage.diagnosis.select.too_few_to_test`). With ``cross_judged`` (the rounds
+    were judged on every experiment), the experiments alone at the largest size of their
+    kind (:func:`lone_largest`)."""
     advice: list[dict[str, Any]] = []
     level = {id(r): min(r.p_level, p_value) for r in selected}
     few = [
@@ -433,6 +480,21 @@ def experiment_advice(
                 "1.5 s, in both directions",
             }
         )
+    if cross_judged:
+        for e, kind, size, factor in lone_largest(experiments, _count(experiments)):
+            advice.append(
+                {
+                    "effects": ["backlash", "drive_compliance", "amplifier_dynamics"],
+                    "issue": f"{e.name} is the only {kind} at {size}, the next largest "
+                    f"{kind} asks for {factor:.3g} times less: judged on every experiment, "
+                    f"each candidate is refitted without {e.name} and predicts it from "
+                    f"smaller {kind}s alone, so a refit that does not extrapolate to its size "
+                    "(a dead band or a lag hunting where it never trained) counts against its "
+                    "effect there",
+                    "experiment": f"repeat {e.name}, or add a second {kind} at {size}, so "
+                    f"that the models that judge it have trained on a {kind} of its size",
+                }
+            )
     good = [r for r in results if r.shrink > penalty]
     for i, a in enumerate(good):
         for b in good[i + 1 :]:
@@ -1035,6 +1097,7 @@ def assemble_report(
             ranking=st.ranking,
             selected=selecting,
             p_value=st.p_value,
+            cross_judged=bool(out.get("cross_judged")),
         ),
         "level_scatter": out.get("level_scatter"),
         "level_floors": dict(out.get("level_floors") or {}),
