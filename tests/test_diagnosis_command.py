@@ -430,11 +430,13 @@ def _step(name: str, height_m: float) -> Experiment:
 def test_advice_names_the_experiment_alone_at_the_largest_size_of_its_kind() -> None:
     """Ramps at 20, 200 and 1000 µm/s: the fastest is alone at its size (5×), and judged on
     every experiment it is predicted from slower ramps; steps of 0.1, 0.5 and 1 mm are not
-    (the next is half the largest: within the factor 2), nor a kind of one (a micro-step)."""
+    (the next is half the largest: within the factor 2), nor a kind of one (a micro-step; a
+    hold that never moves is of no kind)."""
     ramps = [_ramp(f"r{i}", v) for i, v in enumerate((20e-6, 200e-6, 1e-3))]
     steps = [_step(f"s{i}", h) for i, h in enumerate((100e-6, 500e-6, 1e-3))]
     micro = _step("m", 3 * Q)
-    alone = lone_largest(ramps + steps + [micro], Q)
+    hold = _design("h", np.full(300, 2e-3))  # moves nowhere: of no kind
+    alone = lone_largest([*ramps, *steps, micro, hold], Q)
     assert [(e.name, kind, size) for e, kind, size, _ in alone] == [("r2", "ramp", "1 mm/s")]
     assert alone[0][3] == pytest.approx(5.0)
     # A second ramp at the top speed, or steps whose largest is 2.5 × the next: the ramp

@@ -243,29 +243,32 @@ def lone_largest(
     experiments: Sequence[Experiment], count_m: float | None
 ) -> list[tuple[Experiment, str, str, float]]:
     """The experiments alone at the largest size of their kind (:func:`~.loop.experiment_class`,
-    of two or more; the size is :func:`~.loop.experiment_scale`): the next largest of the kind
+    of two or more that move; the size is :func:`~.loop.experiment_scale`): the next largest
+    of the kind
     asks for a motion smaller by more than :data:`LONE_LARGEST_FACTOR`. Each with its kind's
     name, its size in words (a ramp's speed, a move's largest step) and the factor.
     Cross-judging holds each experiment out once (:func:`~.loop.cross_judge_split`), so such
     an experiment is predicted by models refitted on smaller motions only."""
     kinds: dict[int, list[tuple[float, Experiment]]] = {}
     for e in experiments:
-        k = experiment_class(e.reference_m, count_m or 0.0)
-        kinds.setdefault(k, []).append((experiment_scale(e.reference_m), e))
+        scale = experiment_scale(e.reference_m)
+        if scale > 0.0:  # a reference that never moves is of no kind
+            k = experiment_class(e.reference_m, count_m or 0.0)
+            kinds.setdefault(k, []).append((scale, e))
     out = []
     for k, members in sorted(kinds.items()):
         if len(members) < 2:
             continue
         members.sort(key=lambda m: -m[0])
         (top, e), (nxt, _) = members[0], members[1]
-        if top <= 0.0 or top <= LONE_LARGEST_FACTOR * nxt:
+        if top <= LONE_LARGEST_FACTOR * nxt:
             continue
         if k == 0:
             dt = float(np.median(np.diff(e.time_s))) if len(e.time_s) > 1 else 0.0
             size = _length(top / dt) + "/s" if dt > 0.0 else _length(top) + " per sample"
         else:
             size = _length(top)
-        out.append((e, _KIND_NAMES[k], size, top / nxt if nxt > 0.0 else math.inf))
+        out.append((e, _KIND_NAMES[k], size, top / nxt))
     return out
 
 
