@@ -447,7 +447,7 @@ def test_advice_names_the_experiment_alone_at_the_largest_size_of_its_kind() -> 
     assert [(e.name, kind, size) for e, kind, size, _ in alone] == [("s2", "step", "1 mm")]
     issues = [a["issue"] for a in experiment_advice(ramps + steps, 2e-3, [], 0.05)]
     assert not any("the only" in i for i in issues)  # not cross-judged: nothing to say
-    advice = experiment_advice(ramps + steps, 2e-3, [], 0.05, cross_judged=True)
+    advice = experiment_advice(ramps + steps, 2e-3, [], 0.05, cross_judged_count_m=Q)
     lone = [a for a in advice if "the only" in a["issue"]]
     assert [a["issue"].split(" is the only")[0] for a in lone] == ["r2", "s2"]
     assert "repeat r2, or add a second ramp at 1 mm/s" in lone[0]["experiment"]

@@ -240,7 +240,7 @@ _KIND_NAMES = {0: "ramp", 1: "micro-step", 2: "step"}
 
 
 def lone_largest(
-    experiments: Sequence[Experiment], count_m: float | None
+    experiments: Sequence[Experiment], count_m: float
 ) -> list[tuple[Experiment, str, str, float]]:
     """The experiments alone at the largest size of their kind (:func:`~.loop.experiment_class`,
     of two or more that move; the size is :func:`~.loop.experiment_scale`): the next largest
@@ -253,7 +253,7 @@ def lone_largest(
     for e in experiments:
         scale = experiment_scale(e.reference_m)
         if scale > 0.0:  # a reference that never moves is of no kind
-            k = experiment_class(e.reference_m, count_m or 0.0)
+            k = experiment_class(e.reference_m, count_m)
             kinds.setdefault(k, []).append((scale, e))
     out = []
     for k, members in sorted(kinds.items()):
@@ -284,7 +284,7 @@ def experiment_advice(
     ranking: str = "relative",
     selected: Sequence[CandidateResult] = (),
     p_value: float = 0.05,
-    cross_judged: bool = False,
+    cross_judged_count_m: float | None = None,
 ) -> list[dict[str, Any]]:
     """What the experiments cannot reveal, and which experiment would. With ``folds``, also
     whether the validation experiments revisit positions their training experiments
@@ -298,9 +298,9 @@ def experiment_advice(
     selected effects' results, each from its round), whether an effect's relative
     significance rests on too few validation experiments above their noise floors for any
     test over them to reach the level it was judged at (its ``p_level``, at most ``p_value``:
-    :func:`~nanostage.diagnosis.select.too_few_to_test`). With ``cross_judged`` (the rounds
-    were judged on every experiment), the experiments alone at the largest size of their
-    kind (:func:`lone_largest`)."""
+    :func:`~nanostage.diagnosis.select.too_few_to_test`). With ``cross_judged_count_m`` (the
+    rounds were judged on every experiment, their kinds told with this encoder count), the
+    experiments alone at the largest size of their kind (:func:`lone_largest`)."""
     advice: list[dict[str, Any]] = []
     level = {id(r): min(r.p_level, p_value) for r in selected}
     few = [
@@ -483,8 +483,8 @@ def experiment_advice(
                 "1.5 s, in both directions",
             }
         )
-    if cross_judged:
-        for e, kind, size, factor in lone_largest(experiments, _count(experiments)):
+    if cross_judged_count_m is not None:
+        for e, kind, size, factor in lone_largest(experiments, cross_judged_count_m):
             advice.append(
                 {
                     "effects": ["backlash", "drive_compliance", "amplifier_dynamics"],
@@ -1100,7 +1100,9 @@ def assemble_report(
             ranking=st.ranking,
             selected=selecting,
             p_value=st.p_value,
-            cross_judged=bool(out.get("cross_judged")),
+            cross_judged_count_m=(
+                out["nominal"].system.encoder.count_m if out.get("cross_judged") else None
+            ),
         ),
         "level_scatter": out.get("level_scatter"),
         "level_floors": dict(out.get("level_floors") or {}),
