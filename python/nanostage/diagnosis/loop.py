@@ -38,6 +38,7 @@ from .scatter import LevelScatter, level_floors, level_scatter_directions, level
 from .select import (
     CandidateResult,
     bootstrap_p,
+    holm_levels,
     log_occam_factor,
     null_test_p,
     pick_winner,
@@ -684,6 +685,7 @@ def diagnose_experiments(
         # model before's free values (:attr:`DiagnosisSettings.screen_holds_nominal`).
         held = {r.effect for r in results} if st.screen_holds_nominal else set()
         _refine(top, now, ctx, results, held, skipped, rnd, progress, executor)
+        results = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
         results.sort(key=ranked)
         # Refitting alone: a candidate's fit moves the free nominal parameters too, and
         # may have found a better optimum of the model *without* the effect. Refit the
@@ -730,6 +732,7 @@ def diagnose_experiments(
                 for r in results
             ]
             results.sort(key=ranked)
+        results = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
         rounds.append(results)
         if rnd == 0:
             pool_names = [r.effect for r in results]
@@ -745,6 +748,7 @@ def diagnose_experiments(
                 [by_name[best.effect]], now, ctx, results, held, skipped, rnd, progress, executor
             )
             held.discard(best.effect)
+            results[:] = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
             results.sort(key=ranked)
             best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
         if st.cross_judge_folds > 1 and len(ctx.folds) == 1:
@@ -1332,7 +1336,9 @@ def _cross_judge(
         )
         return dataclasses.replace(v, log_occam=r.log_occam, units=r.units)
 
-    out = _thread_map(one, pool, st.parallel_candidates)
+    out = _judged_holm(
+        cj, _thread_map(one, pool, st.parallel_candidates), base_ms, base_cmd, base_units
+    )
     out.sort(key=rank_key(st.ranking))
     return out
 
@@ -1516,6 +1522,57 @@ def _judge(
     )
 
 
+def _judged_holm(
+    ctx: _Ctx,
+    results: Sequence[CandidateResult],
+    base_ms: FloatArray,
+    base_cmd: Sequence[float | None],
+    base_units: FloatArray | None,
+) -> list[CandidateResult]:
+    """``results`` (one family of :attr:`_Ctx.family` candidates, each judged against the
+    model before's ``base_ms``, ``base_cmd``, ``base_units``) judged again at the levels of
+    Holm's step-down (:func:`~.select.holm_levels`) with
+    :attr:`DiagnosisSettings.multiple_testing`, a step passed only by a candidate that
+    passes every other rule too. The smallest p is judged at the Bonferroni level as before
+    and the step-down stops where Bonferroni's candidates end, so whether the family has
+    anything significant does not change; the next ones are judged at levels that grow as
+    the smaller ones pass. A candidate that explains more of the gap than the first
+    significant one and misses Bonferroni's level by a little is then no longer passed over
+    for it. Same order as ``results``."""
+    st = ctx.st
+    if not st.multiple_testing or not results:
+        return list(results)
+    divisors = holm_levels(
+        [r.p_value for r in results],
+        st.p_value,
+        ctx.family,
+        [r.other_rules_pass for r in results],
+    )
+    out: list[CandidateResult] = []
+    for r, d in zip(results, divisors, strict=True):
+        if r.p_level == st.p_value / d:
+            out.append(r)
+            continue
+        v = _verdict(
+            r.effect,
+            r.fold_fits,
+            r.validation_ms,
+            r.validation_command_ms,
+            r.setting,
+            r.k_params,
+            base_ms,
+            base_cmd,
+            ctx,
+            r.index,
+            r.validation_units,
+            base_units,
+            r.null_params,
+            divisor=d,
+        )
+        out.append(dataclasses.replace(v, log_occam=r.log_occam, units=r.units))
+    return out
+
+
 def _null_params(cand: Candidate) -> tuple[tuple[str, Param], ...]:
     """The candidate's parameters that have a null value, by their names in a fit."""
     return tuple((f"{cand.name}.{p.name}", p) for p in cand.params if p.null is not None)
@@ -1560,16 +1617,23 @@ def _verdict(
     units: FloatArray | None = None,
     base_units: FloatArray | None = None,
     null_params: Sequence[tuple[str, Param]] = (),
+    *,
+    divisor: int | None = None,
 ) -> CandidateResult:
     """Judge fitted candidate results against the model before (``base_ms``). The bootstrap
     resamples validation moves (``units``/``base_units``) when both are given, else
     experiments. ``null_params``: the candidate's parameters that have a null value, for
-    :attr:`DiagnosisSettings.null_test`."""
+    :attr:`DiagnosisSettings.null_test`. ``divisor``: the p is judged at
+    :attr:`DiagnosisSettings.p_value` over it (Holm's step-down over the family,
+    :func:`_judged_holm`), not over the whole family (Bonferroni)."""
     st = ctx.st
     alpha = ctx.p_level
     level = f"{alpha:.2g}" + (
         f" ({st.p_value:g} over {ctx.family} candidates)" if alpha != st.p_value else ""
     )
+    if divisor is not None and st.multiple_testing and divisor != max(ctx.family, 1):
+        alpha = st.p_value / divisor
+        level = f"{alpha:.2g} (Holm: {st.p_value:g} over {divisor} of {ctx.family} candidates)"
     # The rules weigh each validation experiment by its own noise floor (all 1 without
     # kind floors): in units of the overall floor, a quiet experiment's gap counts as much
     # as a loud one's relative to what noise alone gives there. The move units come
@@ -1592,7 +1656,9 @@ def _verdict(
         and judged >= st.large_shrink
     )
     reasons = []
+    # ``ok``: every rule but the bootstrap's level (``p_ok``) holds.
     ok = True
+    p_ok = True
     if relative:
         # An experiment at its floor before and after (log ratio 0 after the clamp) says
         # nothing for or against the candidate: it is left out of the bootstrap, as a
@@ -1601,7 +1667,7 @@ def _verdict(
         informative: int | None = int(np.count_nonzero(log_ratios))
         p = bootstrap_p(log_ratios[log_ratios != 0.0], st.bootstrap, st.seed + 1000 + index)
         if p >= alpha and not large:
-            ok = False
+            p_ok = False
             reasons.append(
                 f"bootstrap over validation experiments (log ratios): p = {p:.3f} ≥ {level}"
             )
@@ -1624,7 +1690,7 @@ def _verdict(
         )
         p = bootstrap_p(du, st.bootstrap, st.seed + 1000 + index)
         if p >= alpha and not large:
-            ok = False
+            p_ok = False
             reasons.append(f"bootstrap over validation moves{wtag}: p = {p:.3f} ≥ {level}")
         if weighted_shrink <= penalty:
             ok = False
@@ -1684,7 +1750,7 @@ def _verdict(
             f"the measured command (a channel the fit does not use) gets worse: its RMS "
             f"residual × {command_ratio:.2f}"
         )
-    if ok:
+    if ok and p_ok:
         reasons.append(
             gap_text
             + f", bootstrap p = {p:.3f}"
@@ -1703,7 +1769,8 @@ def _verdict(
         weighted_shrink=weighted_shrink,
         geometric_shrink=geometric_shrink,
         p_value=p,
-        significant=ok,
+        significant=ok and p_ok,
+        other_rules_pass=ok,
         reasons=reasons,
         setting=setting,
         index=index,

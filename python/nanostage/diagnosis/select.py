@@ -61,6 +61,7 @@ __all__ = [
     "SIGNIFICANCES",
     "CandidateResult",
     "bootstrap_p",
+    "holm_levels",
     "indistinguishable",
     "log_occam_factor",
     "null_test_p",
@@ -124,6 +125,8 @@ class CandidateResult:
     #: such parameter, or no covariance).
     null_params: tuple[tuple[str, Param], ...] = ()
     null_p_value: float | None = None
+    #: Every rule of significance but the bootstrap's level holds (:func:`holm_levels`).
+    other_rules_pass: bool = True
 
     @property
     def log_ms(self) -> FloatArray:
@@ -187,6 +190,47 @@ def too_few_to_test(n: int, p_value: float) -> bool:
     the relative significance uses gives p = 0 whenever all ``n`` improve, however few, small
     and scattered they are: below this count its p is no evidence of consistency."""
     return 0.5**n > p_value
+
+
+def holm_levels(
+    p_values: Sequence[float],
+    p_value: float,
+    family: int,
+    others_pass: Sequence[bool] | None = None,
+) -> list[int]:
+    """Holm's step-down over a family of ``family`` candidates (at least ``len(p_values)``;
+    a candidate of the family without a p counts as not significant): for each p (in the
+    given order), the number of candidates its level divides ``p_value`` by. The smallest p
+    is judged at ``p_value``/``family``, as Bonferroni judges every p; the k-th smallest
+    (from 0) at ``p_value``/(``family`` − k) once every smaller one passed its level. From
+    the first p that fails its level on, every larger p is judged at that same level, and
+    fails it. The family-wise error rate is ``p_value`` under any dependence between the
+    tests, as with Bonferroni; what passes Bonferroni passes here. Ties of p keep the given
+    order.
+
+    ``others_pass`` (per p: whether the candidate passes every other rule of
+    significance): a step passes only where that holds too, so the step-down stops at the
+    first candidate that is not significant, and the ones after it are judged at its level.
+    Then a family with nothing significant under Bonferroni has nothing significant here
+    either: its smallest p is judged at Bonferroni's level and, failing that or another
+    rule, leaves every other p at Bonferroni's level too."""
+    m = max(family, len(p_values))
+    if others_pass is not None and len(others_pass) != len(p_values):
+        raise ValueError(
+            f"others_pass has {len(others_pass)} entries; expected one per p ({len(p_values)})"
+        )
+    order = sorted(range(len(p_values)), key=lambda i: (p_values[i], i))
+    out = [m] * len(p_values)
+    divisor = m
+    passing = True
+    for k, i in enumerate(order):
+        if passing:
+            divisor = m - k
+            passing = p_values[i] < p_value / divisor and (
+                others_pass is None or bool(others_pass[i])
+            )
+        out[i] = divisor
+    return out
 
 
 def bootstrap_p(d: FloatArray, n_boot: int, seed: int) -> float:

@@ -52,10 +52,16 @@ class DiagnosisSettings:
     n_starts_friction_models: int = 6
     max_nfev_per_param: int = 12
     diff_step: float = 0.03
-    bootstrap: int = 400
+    #: Resamples of each bootstrap p. Its Monte Carlo error is √(p(1−p)/n): at the levels
+    #: a family of 8–17 candidates is judged at (0.003–0.006), 400 resamples left an error
+    #: (0.003) as large as the level, so whether a p near it passed was decided by the
+    #: resampling's seed (a p of 3 resamples in 400 against a level of 2); 10 000 bring it
+    #: to a tenth of the level, for about 5 ms per candidate judged.
+    bootstrap: int = 10000
     p_value: float = 0.05
-    #: Bonferroni: a round selects the best of the candidates it judges together, so each
-    #: is judged at ``p_value`` over their number (:attr:`CandidateResult.p_level`): with
+    #: A round selects the best of the candidates it judges together, so each is judged
+    #: at ``p_value`` over their number (Holm's step-down: the number not yet significant,
+    #: :func:`~.select.holm_levels`; :attr:`CandidateResult.p_level`): with
     #: k candidates at 0.05 each, a gap that no candidate explains still passes one of them
     #: by chance up to k·5 % of the time. Where a round is judged again on every experiment
     #: (:attr:`cross_judge_folds`), that judgement's candidates are the family. The selected
