@@ -203,8 +203,8 @@ def holm_levels(
     given order), the number of candidates its level divides ``p_value`` by. The smallest p
     is judged at ``p_value``/``family``, as Bonferroni judges every p; the k-th smallest
     (from 0) at ``p_value``/(``family`` − k) once every smaller one passed its level. From
-    the first p that fails its level on, every larger p is judged at that same level, and
-    fails it. The family-wise error rate is ``p_value`` under any dependence between the
+    the first p that fails its level on, every larger p is judged at that same level (and,
+    without ``others_pass``, fails it). The family-wise error rate is ``p_value`` under any dependence between the
     tests, as with Bonferroni; what passes Bonferroni passes here. Ties of p keep the given
     order.
 
