@@ -204,9 +204,9 @@ def holm_levels(
     is judged at ``p_value``/``family``, as Bonferroni judges every p; the k-th smallest
     (from 0) at ``p_value``/(``family`` − k) once every smaller one passed its level. From
     the first p that fails its level on, every larger p is judged at that same level (and,
-    without ``others_pass``, fails it). The family-wise error rate is ``p_value`` under any dependence between the
-    tests, as with Bonferroni; what passes Bonferroni passes here. Ties of p keep the given
-    order.
+    without ``others_pass``, fails it). The family-wise error rate is ``p_value`` under any
+    dependence between the tests, as with Bonferroni; what passes Bonferroni passes here.
+    Ties of p keep the given order.
 
     ``others_pass`` (per p: whether the candidate passes every other rule of
     significance): a step passes only where that holds too, so the step-down stops at the
