@@ -709,28 +709,7 @@ def diagnose_experiments(
                 nominal_fits, base_ms = current_fits, current_ms
             # Judged again against the new baseline; what does not depend on it (the
             # Occam factor, the units) is carried over.
-            results = [
-                dataclasses.replace(
-                    _verdict(
-                        r.effect,
-                        r.fold_fits,
-                        r.validation_ms,
-                        r.validation_command_ms,
-                        r.setting,
-                        r.k_params,
-                        current_ms,
-                        current_cmd,
-                        ctx,
-                        r.index,
-                        r.validation_units,
-                        current_units,
-                        r.null_params,
-                    ),
-                    log_occam=r.log_occam,
-                    units=r.units,
-                )
-                for r in results
-            ]
+            results = [_rejudged(ctx, r, current_ms, current_cmd, current_units) for r in results]
             results.sort(key=ranked)
         results = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
         rounds.append(results)
@@ -1550,27 +1529,40 @@ def _judged_holm(
     )
     out: list[CandidateResult] = []
     for r, d in zip(results, divisors, strict=True):
-        if r.p_level == st.p_value / d:
-            out.append(r)
-            continue
-        v = _verdict(
-            r.effect,
-            r.fold_fits,
-            r.validation_ms,
-            r.validation_command_ms,
-            r.setting,
-            r.k_params,
-            base_ms,
-            base_cmd,
-            ctx,
-            r.index,
-            r.validation_units,
-            base_units,
-            r.null_params,
-            divisor=d,
-        )
-        out.append(dataclasses.replace(v, log_occam=r.log_occam, units=r.units))
+        same = r.p_level == st.p_value / d
+        out.append(r if same else _rejudged(ctx, r, base_ms, base_cmd, base_units, divisor=d))
     return out
+
+
+def _rejudged(
+    ctx: _Ctx,
+    r: CandidateResult,
+    base_ms: FloatArray,
+    base_cmd: Sequence[float | None],
+    base_units: FloatArray | None,
+    *,
+    divisor: int | None = None,
+) -> CandidateResult:
+    """``r`` judged again (:func:`_verdict`) against the model before's ``base_ms``,
+    ``base_cmd``, ``base_units`` (``divisor``: as there); what does not depend on the
+    judgement (the Occam factor, the units) is carried over."""
+    v = _verdict(
+        r.effect,
+        r.fold_fits,
+        r.validation_ms,
+        r.validation_command_ms,
+        r.setting,
+        r.k_params,
+        base_ms,
+        base_cmd,
+        ctx,
+        r.index,
+        r.validation_units,
+        base_units,
+        r.null_params,
+        divisor=divisor,
+    )
+    return dataclasses.replace(v, log_occam=r.log_occam, units=r.units)
 
 
 def _null_params(cand: Candidate) -> tuple[tuple[str, Param], ...]:
