@@ -37,6 +37,7 @@ from nanostage.diagnosis import (
     write_report,
     write_trace_csv,
 )
+from nanostage.diagnosis.settings import DEFAULT_LEVEL_SCATTER
 from nanostage.effects import EFFECT_NAMES
 from nanostage.experiment import Experiment
 from nanostage.iso230_2 import evaluate
@@ -420,10 +421,12 @@ def test_manifest_roles_give_one_fold_and_all_candidates(tmp_path: Path) -> None
     man = load_manifest(root / "m.toml")
     assert man.diagnosis.candidates == EFFECT_NAMES
     assert [(f.train, f.validate) for f in man.splits()] == [(("x",), ("y",))]
-    assert man.diagnosis.level_scatter == 0.0
-    text = (root / "m.toml").read_text().replace('"all"\n', '"all"\nlevel_scatter = 0.02\n')
-    (root / "m.toml").write_text(text)
-    assert load_manifest(root / "m.toml").diagnosis.level_scatter == 0.02
+    assert man.diagnosis.level_scatter == DEFAULT_LEVEL_SCATTER == 0.01
+    plain = (root / "m.toml").read_text()
+    for given, value in (("0.02", 0.02), ("0", 0.0)):
+        text = plain.replace('"all"\n', f'"all"\nlevel_scatter = {given}\n')
+        (root / "m.toml").write_text(text)
+        assert load_manifest(root / "m.toml").diagnosis.level_scatter == value
 
 
 def test_manifest_model_file_overrides(tmp_path: Path) -> None:

@@ -2676,7 +2676,11 @@ def test_the_round_selects_by_the_cross_judged_results(
         return [dc.replace(r, significant=r.effect == chosen[0]) for r in out]
 
     monkeypatch.setattr(lp, "_cross_judge", other_wins)
-    st = dc.replace(FAST, cross_judge_folds=2, crossfit_folds=0, forward_rounds=1)
+    # Without the level scatter: with it, a candidate's validation RMS is that of the gaps
+    # the scatter discounts, while the report's gap after stays in metres as measured.
+    st = dc.replace(
+        FAST, cross_judge_folds=2, crossfit_folds=0, forward_rounds=1, level_scatter=0.0
+    )
     d = diagnose(m, None, settings=st, progress=False)
     assert d.report["selected"] == chosen
     first = next(c for c in d.report["candidates"] if c["effect"] == chosen[0])

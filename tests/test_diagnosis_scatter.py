@@ -31,7 +31,7 @@ from nanostage.diagnosis.scatter import (
     level_sensitivities,
     with_friction_level,
 )
-from nanostage.diagnosis.settings import DiagnosisSettings
+from nanostage.diagnosis.settings import DEFAULT_LEVEL_SCATTER, DiagnosisSettings
 from nanostage.effects import Effects, FrictionModifiers, PositionFriction
 from nanostage.experiment import Experiment
 
@@ -185,8 +185,9 @@ def test_fit_residuals_are_the_gap_with_its_level_component_discounted() -> None
     assert np.array_equal(only.residuals(other, exps)[1], plain.residuals(other, exps)[1])
 
 
-def test_level_scatter_setting_is_off_by_default() -> None:
-    assert DiagnosisSettings().level_scatter == 0.0
+def test_level_scatter_setting_defaults_to_one_percent() -> None:
+    assert DiagnosisSettings().level_scatter == DEFAULT_LEVEL_SCATTER == 0.01
+    assert dc.replace(DiagnosisSettings(), level_scatter=0.0).level_scatter == 0.0
     assert dc.replace(DiagnosisSettings(), level_scatter=0.02).level_scatter == 0.02
 
 

@@ -352,7 +352,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         truth_check=not args.no_truth_check,
         truth=args.truth,
-        level_scatter=args.level_scatter,
+        **({} if args.level_scatter is None else {"level_scatter": args.level_scatter}),
     )
     detect = (
         ""
@@ -704,10 +704,11 @@ def _build_parser() -> argparse.ArgumentParser:
     bm.add_argument(
         "--level-scatter",
         type=float,
-        default=0.0,
+        default=None,
         metavar="SIGMA",
         help="diagnose every case with this run-to-run friction level scatter (relative, "
-        "1 sigma, e.g. 0.01; written into each case's manifest); default 0: left out",
+        "1 sigma; written into each case's manifest); default: the diagnosis's default, "
+        "0.01; 0: left out",
     )
     bm.add_argument("--quiet", action="store_true", help="no per-case lines")
     bm.add_argument(

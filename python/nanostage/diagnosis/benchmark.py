@@ -57,7 +57,7 @@ from .case_manifest import case_manifest_head
 from .manifest import load_manifest
 from .run import diagnose, model_gap, readings_gap
 from .scatter import MAX_LEVEL_SCATTER
-from .settings import DiagnosisSettings
+from .settings import DEFAULT_LEVEL_SCATTER, DiagnosisSettings
 from .traces import write_trace_csv
 
 __all__ = [
@@ -359,13 +359,13 @@ def generate_case(
     *,
     level_spread: float = 0.005,
     design: Sequence[Design] = DESIGN,
-    level_scatter: float = 0.0,
+    level_scatter: float | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Write one case's traces and manifest into ``out_dir``; returns the manifest path and
     the truth (hidden effect, its parameters, the perturbed nominal values). ``design``: the
     experiments (default `DESIGN`; ``benches/diagnosis_speed.py`` times a 10-experiment
     subset, `SPEED_DESIGN`); ``level_scatter``: the manifest's ``[diagnosis]`` setting (0:
-    not written)."""
+    left out)."""
     truth, info, rng = draw_truth(hidden, seed, level_spread=level_spread)
     p = presets.seed(1e-3).plant
     assert isinstance(p, Plant)
@@ -499,7 +499,7 @@ def run_benchmark(
     progress: bool = True,
     truth_check: bool = True,
     truth: str = "own",
-    level_scatter: float = 0.0,
+    level_scatter: float = DEFAULT_LEVEL_SCATTER,
 ) -> dict[str, Any]:
     """Generate ``cases`` cases (hidden effects cycled through ``hidden``, parameters random
     from ``seed``), diagnose each from its files alone, score, and write ``benchmark.json``
@@ -515,7 +515,8 @@ def run_benchmark(
     family is its simulator's deterministic model, with and without the hidden effect
     (:func:`independent_oracles`: ``oracle_shrink`` and ``effect_shrink`` per row).
 
-    ``level_scatter`` (relative, 1σ; 0 leaves it out) is written into every case's manifest
+    ``level_scatter`` (relative, 1σ; default 1 %, 0 leaves it out) is written into every
+    case's manifest
     as the diagnosis's run-to-run friction level scatter
     (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.level_scatter`), and replaces
     that of given ``settings``: the benchmark scores the diagnosis as a user who assumes
@@ -593,7 +594,7 @@ def _run_benchmark(
     truth_check: bool,
     final: Path,
     truth: str = "own",
-    level_scatter: float = 0.0,
+    level_scatter: float = DEFAULT_LEVEL_SCATTER,
 ) -> dict[str, Any]:
     """The cases, written into the staging folder ``out``; reports name the manifests at
     their place in the ``final`` folder."""

@@ -34,13 +34,14 @@ def case_manifest_head(
     seed: int,
     *,
     also_free: Mapping[str, tuple[float, float, float]] | None = None,
-    level_scatter: float = 0.0,
+    level_scatter: float | None = None,
 ) -> list[str]:
     """The manifest's ``[model]``, ``[model.bounds]`` and ``[diagnosis]`` lines (one per list
     item, ending with an empty line): the Dahl level and the motor map's static and Coulomb
     torques are free, within bounds around the given nominal values; ``also_free`` adds
-    ``path → (nominal value, lower factor, upper factor)``; ``level_scatter`` > 0 is written
-    as the diagnosis's run-to-run friction level scatter (relative, 1σ)."""
+    ``path → (nominal value, lower factor, upper factor)``; ``level_scatter``, unless None, is
+    written as the diagnosis's run-to-run friction level scatter (relative, 1σ; 0: left
+    out; None: not written, the diagnosis's default applies)."""
     fc0, ts0, tc0 = dahl_coulomb_force_n, static_torque_nm, coulomb_torque_nm
     bounds = {
         "plant.dahl.coulomb_force_n": (0.6 * fc0, 1.5 * fc0),
@@ -62,6 +63,6 @@ def case_manifest_head(
         "[diagnosis]",
         'candidates = "all"',
         f"seed = {seed}",
-        *([f"level_scatter = {level_scatter!r}"] if level_scatter > 0.0 else []),
+        *([] if level_scatter is None else [f"level_scatter = {float(level_scatter)!r}"]),
         "",
     ]

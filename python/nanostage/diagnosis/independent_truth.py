@@ -675,12 +675,13 @@ def write_case(
     *,
     design: Sequence[DesignedExperiment] | None = None,
     workers: int = 1,
-    level_scatter: float = 0.0,
+    level_scatter: float | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Draw a truth, simulate the design and write ``manifest.toml``, one CSV trace per
     experiment (``time_s, reference_m, position_m, command_v``) and ``truth.json`` into
     ``out_dir``; returns the manifest path and the truth record. ``level_scatter``: the
-    manifest's ``[diagnosis]`` setting (0: not written).
+    manifest's ``[diagnosis]`` setting (0: left out; None: not written, the diagnosis's
+    default applies).
 
     ``workers`` > 1 simulates the experiments in that many spawned processes (each
     experiment has its own random stream, so the files are the same to the last bit)."""

@@ -94,6 +94,7 @@ from ..model_file import load_model
 from ..output import OutputError, check_file_stems
 from ..presets import PRESET_CONTROLLER_KIND, PRESET_TRAVEL_M, preset_names, preset_system
 from .scatter import MAX_LEVEL_SCATTER
+from .settings import DEFAULT_LEVEL_SCATTER
 from .traces import (
     ALL_COLUMNS,
     LENGTH_UNITS,
@@ -270,12 +271,12 @@ class ExperimentSpec:
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class DiagnosisSpec:
     """The ``[diagnosis]`` table: candidate effects (resolved), the random seed and the
-    run-to-run friction level scatter (relative, 1σ; 0: left out;
+    run-to-run friction level scatter (relative, 1σ; default 1 %, 0: left out;
     :attr:`~nanostage.diagnosis.settings.DiagnosisSettings.level_scatter`)."""
 
     candidates: tuple[str, ...]
     seed: int
-    level_scatter: float = 0.0
+    level_scatter: float = DEFAULT_LEVEL_SCATTER
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -771,7 +772,9 @@ def _parse_diagnosis(ctx: _Ctx, raw: Any) -> DiagnosisSpec:
     seed = table.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ctx.err("diagnosis.seed", f"expected an integer, got {_tname(seed)}")
-    scatter = ctx.number(table.get("level_scatter", 0.0), "diagnosis.level_scatter")
+    scatter = ctx.number(
+        table.get("level_scatter", DEFAULT_LEVEL_SCATTER), "diagnosis.level_scatter"
+    )
     if not 0.0 <= scatter <= MAX_LEVEL_SCATTER:
         raise ctx.err(
             "diagnosis.level_scatter",

@@ -26,12 +26,19 @@ RANKINGS = ("relative", "pooled")
 SIGNIFICANCES = ("relative", "pooled")
 
 __all__ = [
+    "DEFAULT_LEVEL_SCATTER",
     "RANKINGS",
     "SIGNIFICANCES",
     "DiagnosisSettings",
     "print_progress",
     "with_starts",
 ]
+
+
+#: The run-to-run friction level scatter assumed when none is given (relative, 1σ): a
+#: real axis's static and Coulomb levels wander by a few per cent from run to run
+#: (docs/diagnosis.md, *Run-to-run friction scatter*); 0 in a manifest turns it off.
+DEFAULT_LEVEL_SCATTER = 0.01
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -113,7 +120,8 @@ class DiagnosisSettings:
     #: encoder reading of a stiff loop by a fraction of a count but its command clearly.
     command_channel: bool = True
     #: The run-to-run scatter of the friction levels (relative, 1σ; e.g. 0.02 for 2 %), for
-    #: experiments without repeats; 0 (the default) leaves it out. With it, each
+    #: experiments without repeats; default 1 % (:data:`DEFAULT_LEVEL_SCATTER`),
+    #: 0 leaves it out. With it, each
     #: experiment's gap allows for one level draw of its own: its component along the
     #: direction a level change moves it is discounted by the scatter
     #: (:mod:`~nanostage.diagnosis.scatter`), so a long saturated step, whose position
@@ -121,8 +129,10 @@ class DiagnosisSettings:
     #: holds, ramps and micro-steps that carry the effects' marks. Measured once on fresh
     #: seeds with 0.01 (docs/benchmarks.md): independent family 4/7 and 2/7 first picks
     #: against 2/7 and 2/7 without it (seeds 92, 95), own family 6/7 with and without;
-    #: off by default (the EMPS data give the same selections with it).
-    level_scatter: float = 0.0
+    #: the EMPS data give the same selections with it (their force drive has no level
+    #: factor, so nothing is discounted). On by default since the paired run of docs/
+    #: benchmarks.md (*The run-to-run scatter by default*).
+    level_scatter: float = DEFAULT_LEVEL_SCATTER
     #: How a round orders its candidates, and so which significant one it selects and
     #: which it calls tied (:mod:`~nanostage.diagnosis.select`): ``"relative"``, by the
     #: mean over the validation experiments of log(mean-square gap), every experiment
