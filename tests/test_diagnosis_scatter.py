@@ -191,6 +191,19 @@ def test_level_scatter_setting_defaults_to_one_percent() -> None:
     assert dc.replace(DiagnosisSettings(), level_scatter=0.02).level_scatter == 0.02
 
 
+def test_case_manifests_write_the_scatter_only_when_given() -> None:
+    """A benchmark case's manifest says ``level_scatter = 0.0`` when the scatter is turned
+    off (absent, the diagnosis's 1 % would apply) and nothing when none is given."""
+    from nanostage.diagnosis.case_manifest import case_manifest_head
+
+    def scatter_lines(**kw: float) -> list[str]:
+        return [x for x in case_manifest_head(30.0, 1e-4, 8e-5, 1, **kw) if "scatter" in x]
+
+    assert scatter_lines() == []
+    assert scatter_lines(level_scatter=0.0) == ["level_scatter = 0.0"]
+    assert scatter_lines(level_scatter=0.03) == ["level_scatter = 0.03"]
+
+
 def test_repeat_advice_names_the_experiment_a_level_change_moves_most() -> None:
     s = presets.seed(1e-3)
     exps = [_step(s, 1e-3, "long"), _step(s, 100e-6, "small", start_m=5e-3)]

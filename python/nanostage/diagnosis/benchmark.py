@@ -365,7 +365,7 @@ def generate_case(
     the truth (hidden effect, its parameters, the perturbed nominal values). ``design``: the
     experiments (default `DESIGN`; ``benches/diagnosis_speed.py`` times a 10-experiment
     subset, `SPEED_DESIGN`); ``level_scatter``: the manifest's ``[diagnosis]`` setting (0:
-    left out)."""
+    left out; None: not written, the diagnosis's default applies)."""
     truth, info, rng = draw_truth(hidden, seed, level_spread=level_spread)
     p = presets.seed(1e-3).plant
     assert isinstance(p, Plant)
@@ -516,8 +516,7 @@ def run_benchmark(
     (:func:`independent_oracles`: ``oracle_shrink`` and ``effect_shrink`` per row).
 
     ``level_scatter`` (relative, 1σ; default 1 %, 0 leaves it out) is written into every
-    case's manifest
-    as the diagnosis's run-to-run friction level scatter
+    case's manifest as the diagnosis's run-to-run friction level scatter
     (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.level_scatter`), and replaces
     that of given ``settings``: the benchmark scores the diagnosis as a user who assumes
     that scatter would run it.

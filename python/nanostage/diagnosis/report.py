@@ -486,8 +486,10 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
         discounted = scatter.get("discounted") or {}
         lines.append(
             f"- **Run-to-run friction scatter:** {float(scatter['spread']):.3g} (relative "
-            f"level, given); in {len(discounted)} experiment(s) the fits and judgements "
-            "allow each run a level of its own within it (the gaps shown are as measured)"
+            f"level, assumed: `level_scatter`); in {len(discounted)} experiment(s) the fits "
+            "and judgements allow each run a level of its own within it (the gaps shown are "
+            "as measured, a candidate's validation RMS and shrink are those of the "
+            "discounted gaps)"
         )
     un_gap = report.get("unexplained")
     if isinstance(un_gap, Mapping) and _num(un_gap.get("gap_rms_m")) is not None:

@@ -426,8 +426,8 @@ def experiment_advice(
                 f"{v:.3g} noise floors (RMS)"
                 + (f", and {others} other experiment(s) by more than one" if others else "")
                 + ": gaps and differences between candidates of that size there can be "
-                "scatter, not an effect (give the machine's scatter as level_scatter if it "
-                "is known)"
+                "scatter, not an effect (the fits allow for level_scatter, 1 % unless given: "
+                "give the machine's if it is known)"
             )
             experiment = f"repeat {n} 3–5 times (the repeats measure the scatter)"
         advice.append(
