@@ -129,9 +129,8 @@ class DiagnosisSettings:
     #: holds, ramps and micro-steps that carry the effects' marks. Measured once on fresh
     #: seeds with 0.01 (docs/benchmarks.md): independent family 4/7 and 2/7 first picks
     #: against 2/7 and 2/7 without it (seeds 92, 95), own family 6/7 with and without;
-    #: the EMPS data give the same selections with it (their force drive has no level
-    #: factor, so nothing is discounted). On by default since the paired run of docs/
-    #: benchmarks.md (*The run-to-run scatter by default*).
+    #: the EMPS data give the same selections and gaps with it and without. On by default
+    #: since the runs of docs/benchmarks.md (*The run-to-run scatter by default*).
     level_scatter: float = DEFAULT_LEVEL_SCATTER
     #: How a round orders its candidates, and so which significant one it selects and
     #: which it calls tied (:mod:`~nanostage.diagnosis.select`): ``"relative"``, by the
