@@ -120,9 +120,9 @@ class DiagnosisSettings:
     #: encoder reading of a stiff loop by a fraction of a count but its command clearly.
     command_channel: bool = True
     #: The run-to-run scatter of the friction levels (relative, 1σ; e.g. 0.02 for 2 %), for
-    #: experiments without repeats; default 1 % (:data:`DEFAULT_LEVEL_SCATTER`),
-    #: 0 leaves it out. With it, each
-    #: experiment's gap allows for one level draw of its own: its component along the
+    #: experiments without repeats; default 1 % (:data:`DEFAULT_LEVEL_SCATTER`), 0 leaves
+    #: it out. With it, each experiment's gap allows for one level draw of its own: its
+    #: component along the
     #: direction a level change moves it is discounted by the scatter
     #: (:mod:`~nanostage.diagnosis.scatter`), so a long saturated step, whose position
     #: error a 1 % level change makes add up over the whole move, no longer outweighs the
