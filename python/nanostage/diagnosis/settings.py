@@ -122,8 +122,7 @@ class DiagnosisSettings:
     #: The run-to-run scatter of the friction levels (relative, 1σ; e.g. 0.02 for 2 %), for
     #: experiments without repeats; default 1 % (:data:`DEFAULT_LEVEL_SCATTER`), 0 leaves
     #: it out. With it, each experiment's gap allows for one level draw of its own: its
-    #: component along the
-    #: direction a level change moves it is discounted by the scatter
+    #: component along the direction a level change moves it is discounted by the scatter
     #: (:mod:`~nanostage.diagnosis.scatter`), so a long saturated step, whose position
     #: error a 1 % level change makes add up over the whole move, no longer outweighs the
     #: holds, ramps and micro-steps that carry the effects' marks. Measured once on fresh
