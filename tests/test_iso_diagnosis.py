@@ -413,6 +413,17 @@ def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
     assert summary["encoder_readings"] is encoder
     title = (out / "benchmark.md").read_text(encoding="utf-8").splitlines()[0]
     assert ("with the encoder's readings" in title) is encoder
+    assert summary["magnitude_scale"] == 1.0 and "times their drawn size" not in title
+    scaled = tmp_path / "scaled"
+    assert main([*argv[:-1], str(scaled), "--scale", "0.3"]) == 0
+    summary = json.loads((scaled / "benchmark.json").read_text(encoding="utf-8"))
+    assert summary["magnitude_scale"] == 0.3
+    assert summary["rows"][0]["hidden_parameters"].get("magnitude_scale", 0.3) == 0.3
+    title = (scaled / "benchmark.md").read_text(encoding="utf-8").splitlines()[0]
+    assert "hidden effects at 0.3 times their drawn size" in title
+    calls = len(seen)
+    assert main([*argv[:-1], str(tmp_path / "bad"), "--scale", "0"]) != 0
+    assert len(seen) == calls and not (tmp_path / "bad").exists()
 
 
 @pytest.mark.usefixtures("without_matplotlib")
@@ -542,6 +553,32 @@ def test_the_truths_in_loop_effects_move_the_stop_the_encoder_sees() -> None:
     assert np.std(dev_fs) == pytest.approx(
         math.hypot(expected, 0.3 * iso_truth.COUNT_M / math.sqrt(3)), rel=0.25
     )
+
+
+@pytest.mark.parametrize("effect", iso_truth.EFFECTS)
+def test_the_truths_scale_multiplies_the_hidden_error_and_nothing_else(effect: str) -> None:
+    # Each reading is the nominal loop's stop and noise plus scale × the hidden error (a
+    # friction scatter's stop moves from the nominal's to its own), from the same draws:
+    # the readings are linear in the scale, and scale 1 is the default case exactly.
+    def actual(scale: float | None) -> np.ndarray:
+        kw = {} if scale is None else {"scale": scale}
+        case = iso_truth.draw_case(effect, 11, **kw)
+        return np.array([r["actual_m"] for r in case.rows])
+
+    full, half, quarter = actual(1.0), actual(0.5), actual(0.25)
+    assert np.array_equal(full, actual(None))
+    if effect == "none":
+        assert np.array_equal(full, half) and np.array_equal(full, quarter)
+        return
+    assert np.max(np.abs(full - half)) > 1e-9
+    np.testing.assert_allclose(full - quarter, 1.5 * (full - half), rtol=0, atol=1e-15)
+    assert iso_truth.draw_case(effect, 11, scale=0.5).parameters["magnitude_scale"] == 0.5
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.5, 1.5, math.nan, True, "1"])
+def test_a_scale_outside_zero_to_one_is_an_error_naming_it(bad: object) -> None:
+    with pytest.raises(ValueError, match=r"scale = .* expected a number in \(0, 1\]"):
+        iso_truth.draw_case("abbe", 1, scale=bad)  # type: ignore[arg-type]
 
 
 def test_the_truths_hunting_backlash_swings_by_its_width_and_the_encoder_sees_it() -> None:

@@ -476,9 +476,11 @@ def _iso_diagnose(args: argparse.Namespace) -> int:
 def _iso_diagnose_benchmark(args: argparse.Namespace) -> int:
     from .checks import int_arg
     from .iso_diagnosis_benchmark import MAX_CASES, run_iso_benchmark
+    from .iso_truth import check_scale
 
     int_arg("cases", args.cases, 1, MAX_CASES)
     int_arg("seed", args.seed, 0, 2**32 - 1)
+    check_scale(args.scale)
     check_output_dir(args.out)
     s = run_iso_benchmark(
         args.out,
@@ -487,6 +489,7 @@ def _iso_diagnose_benchmark(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         log=None if args.quiet else _log_line,
         encoder=args.encoder,
+        scale=args.scale,
     )
     print(
         f"top-1 {_pct(s['top1'], '.0%')} (up to ties {_pct(s['top1_up_to_ties'], '.0%')}), "
@@ -857,8 +860,18 @@ def _build_parser() -> argparse.ArgumentParser:
         "candidates are then fitted on the interferometer minus the encoder, the in-loop "
         "ones on the encoder",
     )
+    ibm.add_argument(
+        "--scale",
+        type=_number,
+        default=1.0,
+        help="each hidden effect's error at every reading times this factor, in (0, 1] "
+        "(default 1: the drawn sizes; smaller: where detection ends)",
+    )
     ibm.add_argument("--quiet", action="store_true", help="no per-case lines")
-    ibm.set_defaults(func=_iso_diagnose_benchmark, options={"cases": "--cases", "seed": "--seed"})
+    ibm.set_defaults(
+        func=_iso_diagnose_benchmark,
+        options={"cases": "--cases", "seed": "--seed", "scale": "--scale"},
+    )
     mo = sub.add_parser("model", help="model files (docs/model-file.md)")
     mo_sub = mo.add_subparsers(dest="action", required=True)
     ex = mo_sub.add_parser("export", help="write a preset as a model file")

@@ -24,7 +24,7 @@ import numpy as np
 
 from .checks import int_arg
 from .iso_diagnosis import IsoDiagnosisSettings, diagnose_iso
-from .iso_truth import EFFECTS, TRAVEL_M, draw_case, write_case
+from .iso_truth import EFFECTS, TRAVEL_M, check_scale, draw_case, write_case
 from .measurement import read_iso_measurement
 from .output import ProgressBar, staged_output, write_json
 from .presets import preset_system
@@ -54,12 +54,16 @@ def run_iso_benchmark(
     progress: bool = True,
     log: Callable[[str], None] | None = None,
     encoder: bool = False,
+    scale: float = 1.0,
 ) -> dict[str, Any]:
     """Run ``cases`` blind cases from ``seed`` and write benchmark.json, benchmark.md and
     each case's measurement (cases/) to ``out`` (whole or not at all); with ``encoder``,
-    the cases' files have the encoder's readings. Returns the summary."""
+    the cases' files have the encoder's readings; ``scale`` (in (0, 1]) multiplies each
+    hidden effect's error (:func:`~nanostage.iso_truth.draw_case`), for the detection
+    limit. Returns the summary."""
     n = int_arg("cases", cases, 1, MAX_CASES)
     sd = int_arg("seed", seed, 0, 2**32 - 1)
+    check_scale(scale)
     s = IsoDiagnosisSettings() if settings is None else settings
     system = preset_system("seed")
     rows: list[dict[str, Any]] = []
@@ -68,7 +72,7 @@ def run_iso_benchmark(
         (folder / "cases").mkdir()
         for i in range(n):
             hidden = _case_effect(i, sd)
-            case = draw_case(hidden, sd * 100_000 + i)
+            case = draw_case(hidden, sd * 100_000 + i, scale=scale)
             path = write_case(case, folder / "cases" / f"case_{i:04d}.csv", encoder=encoder)
             t0 = time.perf_counter()
             meas = read_iso_measurement(path, travel_m=(0.0, TRAVEL_M))
@@ -105,6 +109,7 @@ def run_iso_benchmark(
         bar.update(n, final=True)
         summary = _summary(rows, sd, s)
         summary["encoder_readings"] = bool(encoder)
+        summary["magnitude_scale"] = float(scale)
         write_json(summary, folder / "benchmark.json")
         (folder / "benchmark.md").write_text(markdown(summary), encoding="utf-8")
     return summary
@@ -164,7 +169,12 @@ def markdown(summary: dict[str, Any]) -> str:
     s = summary
     lines = [
         f"# ISO-level diagnosis: blind benchmark (seed {s['seed']}, {s['cases']} cases"
-        + (", with the encoder's readings)" if s.get("encoder_readings") else ")"),
+        + (", with the encoder's readings" if s.get("encoder_readings") else "")
+        + (
+            f", hidden effects at {s['magnitude_scale']:g} times their drawn size)"
+            if s.get("magnitude_scale", 1.0) != 1.0
+            else ")"
+        ),
         "",
         f"- top-1 (hidden effect is the verdict): **{_pct(s['top1'])}** of "
         f"{s['effect_cases']}; counting a hidden effect named as indistinguishable: "

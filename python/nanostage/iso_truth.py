@@ -52,7 +52,7 @@ from typing import Any, Final
 
 import numpy as np
 
-__all__ = ["EFFECTS", "IN_LOOP", "TruthCase", "draw_case", "write_case"]
+__all__ = ["EFFECTS", "IN_LOOP", "TruthCase", "check_scale", "draw_case", "write_case"]
 
 #: The hidden effects (and "none").
 EFFECTS: Final[tuple[str, ...]] = (
@@ -265,11 +265,23 @@ def _hunting_backlash(
     )
 
 
-def draw_case(effect: str, seed: int) -> TruthCase:
-    """A synthetic test with ``effect`` hidden, drawn from ``seed``."""
+def check_scale(scale: object) -> float:
+    """``scale`` as a float, or a ``ValueError`` naming it and its valid range (0, 1]."""
+    if isinstance(scale, bool) or not (isinstance(scale, int | float) and 0.0 < scale <= 1.0):
+        raise ValueError(f"scale = {scale!r} is invalid: expected a number in (0, 1]")
+    return float(scale)
+
+
+def draw_case(effect: str, seed: int, *, scale: float = 1.0) -> TruthCase:
+    """A synthetic test with ``effect`` hidden, drawn from ``seed``. ``scale`` (in (0, 1])
+    multiplies the hidden effect's error at every reading (the draws stay those of
+    ``scale = 1``): the detection limit's study. A friction scatter's stop becomes
+    ``(1 − scale)`` times the nominal stop plus ``scale`` times its own."""
+    scale = check_scale(scale)
     rng = np.random.default_rng([int(seed), 0x7AB])
     sched = _schedule(rng)
     params, err = _hidden(effect, rng, sched)
+    err = scale * err
     n = len(sched)
     mismatch = float(rng.uniform(0.6, 1.4))
     stop = COUNT_M * mismatch * rng.uniform(-0.5, 0.5, n)
@@ -287,7 +299,7 @@ def draw_case(effect: str, seed: int) -> TruthCase:
             # Where the loop stops (the encoder on the table sees it); friction scatter's
             # stop within the dead zone takes the place of the nominal stop.
             if effect == "friction_scatter":
-                loop -= stop[k]
+                loop -= scale * stop[k]
             loop += err[k]
             dev = loop
         else:
@@ -306,6 +318,8 @@ def draw_case(effect: str, seed: int) -> TruthCase:
             }
         )
     params = dict(params, loop_mismatch=mismatch, reading_noise_m=noise_m)
+    if scale != 1.0:
+        params["magnitude_scale"] = scale
     return TruthCase(effect, params, rows)
 
 
