@@ -424,6 +424,16 @@ def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
     calls = len(seen)
     assert main([*argv[:-1], str(tmp_path / "bad"), "--scale", "0"]) != 0
     assert len(seen) == calls and not (tmp_path / "bad").exists()
+    # The sizes, stored per case and drawn again from the seed for a run without them,
+    # and the pooled table of both runs (the module's command).
+    stored = summary["rows"][0]["hidden_size_counts"]
+    del summary["rows"][0]["hidden_size_counts"]
+    (scaled / "benchmark.json").write_text(json.dumps(summary), encoding="utf-8")
+    pooled = ibm.pooled_rows([out, scaled])
+    assert pooled[1]["hidden_size_counts"] == stored and pooled[1]["magnitude_scale"] == 0.3
+    assert pooled[0]["hidden_size_counts"] in (0.0, pytest.approx(stored / 0.3))
+    assert ibm.main([str(out), str(scaled)]) == 0
+    assert ibm.main([str(tmp_path / "missing")]) == 2
 
 
 @pytest.mark.usefixtures("without_matplotlib")
@@ -573,6 +583,48 @@ def test_the_truths_scale_multiplies_the_hidden_error_and_nothing_else(effect: s
     assert np.max(np.abs(full - half)) > 1e-9
     np.testing.assert_allclose(full - quarter, 1.5 * (full - half), rtol=0, atol=1e-15)
     assert iso_truth.draw_case(effect, 11, scale=0.5).parameters["magnitude_scale"] == 0.5
+
+
+def test_the_truths_hidden_error_is_what_the_effect_adds_to_each_reading() -> None:
+    # A scale error: strain × distance from the fixing point, times the scale.
+    case = iso_truth.draw_case("scale_error", 4, scale=0.5)
+    p = case.parameters
+    x = np.array([r["target_m"] for r in case.rows])
+    np.testing.assert_allclose(
+        case.hidden_error_m, 0.5 * p["strain"] * (x - p["fixing_point_m"]), rtol=1e-12, atol=0
+    )
+    e = case.hidden_error_m
+    assert case.hidden_size_counts == pytest.approx(float(np.std(e)) / iso_truth.COUNT_M)
+    # Every effect (a friction scatter's stop included): the readings at two scales differ
+    # by the difference of their hidden errors; none has no error and size 0.
+    for effect in iso_truth.EFFECTS:
+        a, b = iso_truth.draw_case(effect, 9, scale=0.8), iso_truth.draw_case(effect, 9, scale=0.2)
+        da = np.array([r["actual_m"] for r in a.rows]) - np.array([r["actual_m"] for r in b.rows])
+        np.testing.assert_allclose(da, a.hidden_error_m - b.hidden_error_m, rtol=0, atol=1e-15)
+    assert iso_truth.draw_case("none", 9).hidden_size_counts == 0.0
+
+
+def test_cases_are_counted_by_the_size_of_their_hidden_error() -> None:
+    import nanostage.iso_diagnosis_benchmark as ibm
+
+    def row(hidden: str, size: float, correct: bool) -> dict[str, Any]:
+        return {"hidden": hidden, "hidden_size_counts": size, "correct": correct}
+
+    rows = [
+        row("none", 0.0, True),
+        row("abbe", 0.1, False),
+        row("abbe", 0.3, True),
+        row("abbe", 0.4, False),
+        row("backlash", 1.0, True),
+        row("backlash", 7.0, True),
+    ]
+    table = ibm.detection_by_size(rows)
+    assert table["abbe"] == {"0–0.25": [0, 1], "0.25–0.5": [1, 2]}
+    assert table["backlash"] == {"1–2": [1, 1], "≥ 5": [1, 1]}
+    assert table["all"]["0.25–0.5"] == [1, 2] and "none" not in table
+    md = ibm.detection_markdown(rows)
+    assert "| abbe | 0/1 | 1/2 | — | — | — | — |" in md
+    assert md.splitlines()[-1] == "| all | 0/1 | 1/2 | — | 1/1 | — | 1/1 |"
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.5, 1.5, math.nan, True, "1"])

@@ -12,10 +12,12 @@ the confusion matrix and the time per case. Docs: docs/iso-diagnosis.md.
 
 from __future__ import annotations
 
+import itertools
+import json
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Final
@@ -29,7 +31,14 @@ from .measurement import read_iso_measurement
 from .output import ProgressBar, staged_output, write_json
 from .presets import preset_system
 
-__all__ = ["MAX_CASES", "run_iso_benchmark"]
+__all__ = [
+    "MAX_CASES",
+    "SIZE_BINS_COUNTS",
+    "detection_by_size",
+    "detection_markdown",
+    "pooled_rows",
+    "run_iso_benchmark",
+]
 
 #: Most cases of one benchmark.
 MAX_CASES: Final[int] = 10_000
@@ -84,6 +93,7 @@ def run_iso_benchmark(
                 "case": i,
                 "hidden": hidden,
                 "hidden_parameters": case.parameters,
+                "hidden_size_counts": case.hidden_size_counts,
                 "found": found,
                 "found_parameters": next(
                     (c["parameters"] for c in rep["candidates"] if c["name"] == found), {}
@@ -147,9 +157,75 @@ def _summary(rows: list[dict[str, Any]], seed: int, s: IsoDiagnosisSettings) -> 
         "max_seconds_per_case": max(r["seconds"] for r in rows),
         "confusion": confusion,
         "per_effect": per_effect,
+        "by_size": detection_by_size(rows),
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},
         "rows": rows,
     }
+
+
+#: The bins of the hidden error's size (RMS about its mean, encoder counts) of
+#: :func:`detection_by_size`: their lower edges.
+SIZE_BINS_COUNTS: Final[tuple[float, ...]] = (0.0, 0.25, 0.5, 1.0, 2.0, 5.0)
+
+
+def _size_bin(size: float) -> str:
+    edges = [*SIZE_BINS_COUNTS, math.inf]
+    for lo, hi in itertools.pairwise(edges):
+        if lo <= size < hi:
+            return f"{lo:g}–{hi:g}" if math.isfinite(hi) else f"≥ {lo:g}"
+    return f"≥ {edges[-2]:g}"
+
+
+def detection_by_size(rows: Sequence[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
+    """Per hidden effect (no-effect cases left out) and bin of its size in encoder counts
+    (:data:`SIZE_BINS_COUNTS`, the rows' ``hidden_size_counts``): [named, cases], where
+    named counts the cases whose verdict is the hidden effect; ``"all"`` sums the effects."""
+    out: dict[str, dict[str, list[int]]] = {}
+    for r in rows:
+        if r["hidden"] == "none":
+            continue
+        b = _size_bin(float(r["hidden_size_counts"]))
+        for key in (r["hidden"], "all"):
+            cell = out.setdefault(key, {}).setdefault(b, [0, 0])
+            cell[0] += int(bool(r["correct"]))
+            cell[1] += 1
+    return out
+
+
+def pooled_rows(folders: Sequence[str | Path]) -> list[dict[str, Any]]:
+    """The case rows of several benchmark output folders (their benchmark.json), each with
+    its run's ``magnitude_scale`` and ``hidden_size_counts`` (drawn again from the run's seed
+    where a row lacks it: the draws are deterministic)."""
+    out = []
+    for folder in folders:
+        path = Path(folder) / "benchmark.json"
+        try:
+            summary = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{path}: not a benchmark's summary ({e})") from None
+        scale = float(summary.get("magnitude_scale", 1.0))
+        for r in summary["rows"]:
+            row = dict(r, magnitude_scale=scale, benchmark=str(folder))
+            if "hidden_size_counts" not in row:
+                case = draw_case(r["hidden"], summary["seed"] * 100_000 + r["case"], scale=scale)
+                row["hidden_size_counts"] = case.hidden_size_counts
+            out.append(row)
+    return out
+
+
+def detection_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """:func:`detection_by_size` of ``rows`` as a Markdown table (named / cases per bin)."""
+    table = detection_by_size(rows)
+    bins = [_size_bin(lo) for lo in SIZE_BINS_COUNTS]
+    lines = [
+        "| hidden \\ size [counts] | " + " | ".join(bins) + " |",
+        "|---" * (len(bins) + 1) + "|",
+    ]
+    order = [e for e in EFFECTS if e in table] + ["all"] * ("all" in table)
+    for h in order:
+        cells = [f"{table[h][b][0]}/{table[h][b][1]}" if b in table[h] else "—" for b in bins]
+        lines.append(f"| {h} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _mean(values: list[bool]) -> float:
@@ -193,11 +269,47 @@ def markdown(summary: dict[str, Any]) -> str:
     lines.append("|---" * (len(cols) + 1) + "|")
     for h, row in s["confusion"].items():
         lines.append(f"| {h} | " + " | ".join(str(row[c]) for c in cols) + " |")
-    lines += ["", "## Cases", "", "| case | hidden | found | tied with | shrink | s |"]
-    lines.append("|---|---|---|---|---|---|")
+    lines += [
+        "",
+        "## Named by size",
+        "",
+        "Cases whose verdict is the hidden effect, of the cases, by the hidden error's size "
+        "(its RMS about its mean over the readings, in encoder counts).",
+        "",
+        detection_markdown(s["rows"]),
+        "## Cases",
+        "",
+        "| case | hidden | size [counts] | found | tied with | shrink | s |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in s["rows"]:
         lines.append(
-            f"| {r['case']} | {r['hidden']} | {r['found']} | {', '.join(r['tied_with']) or '—'} "
-            f"| {_pct(r['figure_gap_shrink'])} | {r['seconds']:.1f} |"
+            f"| {r['case']} | {r['hidden']} | {r['hidden_size_counts']:.2f} | {r['found']} "
+            f"| {', '.join(r['tied_with']) or '—'} | {_pct(r['figure_gap_shrink'])} "
+            f"| {r['seconds']:.1f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m nanostage.iso_diagnosis_benchmark DIR [DIR ...]``: the cases of several
+    benchmark runs (e.g. at several ``--scale``) pooled, named by the hidden error's size."""
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m nanostage.iso_diagnosis_benchmark",
+        description="pool iso-diagnose-benchmark runs: cases named by the hidden error's size",
+    )
+    parser.add_argument("folders", nargs="+", metavar="DIR", help="benchmark output folders")
+    args = parser.parse_args(argv)
+    try:
+        rows = pooled_rows(args.folders)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(detection_markdown(rows), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

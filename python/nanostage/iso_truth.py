@@ -89,12 +89,28 @@ HUNTING_FRACTION: Final[float] = 0.5
 
 
 class TruthCase:
-    """One synthetic test: readings in the order of the test, and what is hidden."""
+    """One synthetic test: readings in the order of the test, what is hidden, and the
+    hidden effect's error at each reading [m] (what it adds to the reading; for a friction
+    scatter, its stop less the nominal stop)."""
 
-    def __init__(self, effect: str, parameters: dict[str, float], rows: list[dict[str, Any]]):
+    def __init__(
+        self,
+        effect: str,
+        parameters: dict[str, float],
+        rows: list[dict[str, Any]],
+        hidden_error_m: np.ndarray | None = None,
+    ):
         self.effect = effect
         self.parameters = parameters
         self.rows = rows
+        self.hidden_error_m = np.zeros(len(rows)) if hidden_error_m is None else hidden_error_m
+
+    @property
+    def hidden_size_counts(self) -> float:
+        """The hidden error's RMS about its mean, in encoder counts (0 without an effect):
+        the size the detection limit is read against."""
+        e = self.hidden_error_m
+        return float(np.sqrt(np.mean((e - np.mean(e)) ** 2)) / COUNT_M) if e.size else 0.0
 
 
 def _move_time_s(distance_m: float) -> float:
@@ -293,6 +309,7 @@ def draw_case(effect: str, seed: int, *, scale: float = 1.0) -> TruthCase:
             bias[key] = float(rng.uniform(-0.3, 0.3)) * COUNT_M
     noise_m = float(rng.uniform(2e-9, 10e-9))
     rows = []
+    hidden_m = np.array(err, dtype=float)
     for k, r in enumerate(sched):
         loop = stop[k] + bias[(round(r["target"], 9), r["direction"])]
         if effect in IN_LOOP:
@@ -300,6 +317,7 @@ def draw_case(effect: str, seed: int, *, scale: float = 1.0) -> TruthCase:
             # stop within the dead zone takes the place of the nominal stop.
             if effect == "friction_scatter":
                 loop -= scale * stop[k]
+                hidden_m[k] = err[k] - scale * stop[k]
             loop += err[k]
             dev = loop
         else:
@@ -320,7 +338,7 @@ def draw_case(effect: str, seed: int, *, scale: float = 1.0) -> TruthCase:
     params = dict(params, loop_mismatch=mismatch, reading_noise_m=noise_m)
     if scale != 1.0:
         params["magnitude_scale"] = scale
-    return TruthCase(effect, params, rows)
+    return TruthCase(effect, params, rows, hidden_m)
 
 
 def write_case(case: TruthCase, path: str | Path, *, encoder: bool = False) -> Path:
