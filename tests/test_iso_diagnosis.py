@@ -418,7 +418,7 @@ def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
     assert main([*argv[:-1], str(scaled), "--scale", "0.3"]) == 0
     summary = json.loads((scaled / "benchmark.json").read_text(encoding="utf-8"))
     assert summary["magnitude_scale"] == 0.3
-    assert summary["rows"][0]["hidden_parameters"].get("magnitude_scale", 0.3) == 0.3
+    assert summary["rows"][0]["hidden_parameters"]["magnitude_scale"] == 0.3
     title = (scaled / "benchmark.md").read_text(encoding="utf-8").splitlines()[0]
     assert "hidden effects at 0.3 times their drawn size" in title
     calls = len(seen)
@@ -434,6 +434,10 @@ def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
     assert pooled[0]["hidden_size_counts"] in (0.0, pytest.approx(stored / 0.3))
     assert ibm.main([str(out), str(scaled)]) == 0
     assert ibm.main([str(tmp_path / "missing")]) == 2
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "benchmark.json").write_text('{"cases": 1}', encoding="utf-8")
+    with pytest.raises(ValueError, match="no list of case rows"):
+        ibm.pooled_rows([tmp_path / "other"])
 
 
 @pytest.mark.usefixtures("without_matplotlib")

@@ -203,6 +203,8 @@ def pooled_rows(folders: Sequence[str | Path]) -> list[dict[str, Any]]:
             summary = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError) as e:
             raise ValueError(f"{path}: not a benchmark's summary ({e})") from None
+        if not isinstance(summary, dict) or not isinstance(summary.get("rows"), list):
+            raise ValueError(f"{path}: not a benchmark's summary (no list of case rows)")
         scale = float(summary.get("magnitude_scale", 1.0))
         for r in summary["rows"]:
             row = dict(r, magnitude_scale=scale, benchmark=str(folder))
