@@ -102,6 +102,7 @@ from nanostage.diagnosis.select import (
     relative_terms,
     significance_mode,
     too_few_to_test,
+    without_unsupported,
 )
 from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
 from nanostage.diagnosis.signatures import SIGNATURE_UNITS
@@ -1749,7 +1750,7 @@ def test_an_effect_whose_fitted_size_does_not_differ_from_none_is_not_named() ->
         return _judge_one_parameter(after, base, 20e-9, np.ones(12), settings, 1, fit, nulls)
 
     weak = judged(_offset_fit(0.12, 0.08))
-    assert weak.p_value == 0.0 and not weak.significant
+    assert weak.p_value == 0.0 and not weak.significant and weak.null_failed
     assert weak.null_p_value == pytest.approx(0.1336, abs=1e-4)
     assert any(
         "does not differ from none (external_force_n = 0.12 ± 0.08 N (none: 0))" in w
@@ -1758,14 +1759,48 @@ def test_an_effect_whose_fitted_size_does_not_differ_from_none_is_not_named() ->
     )
     assert weak.to_dict()["null_p_value"] == pytest.approx(0.1336, abs=1e-4)
     strong = judged(_offset_fit(0.12, 0.01))
-    assert strong.significant and strong.null_p_value < 1e-12
-    assert judged(_offset_fit(0.12, 0.08), dc.replace(st, null_test=False)).significant
+    assert strong.significant and strong.null_p_value < 1e-12 and not strong.null_failed
+    off = judged(_offset_fit(0.12, 0.08), dc.replace(st, null_test=False))
+    assert off.significant and not off.null_failed
     # 100 floors before, 70 % removed: a large explained gap.
     large = judged(_offset_fit(0.12, 0.08), st, np.full(12, (2000e-9) ** 2), 0.3)
     assert large.significant and large.null_p_value == pytest.approx(0.1336, abs=1e-4)
+    assert not large.null_failed
     # Without parameters that have a null (a log-scaled size), no test and no reason.
     plain = _judge_one_parameter(ms, base_ms, 20e-9, np.ones(12), st, 1, _offset_fit(0.1, 1.0))
     assert plain.significant and plain.null_p_value is None
+
+
+def test_judged_on_every_experiment_an_effect_absent_from_its_own_fit_is_not_named() -> None:
+    """Judged on every experiment, each candidate is refitted on folds that hold validation
+    experiments too; the selection carries the round's own fit (training experiments). An
+    offset significant on the folds whose own fit does not differ from none (a consumed
+    independent dwell case: 0.72 ± 0.04 N on the folds, 0.025 ± 0.04 N on the training
+    experiments) is marked not significant, with the reason, and the round picks the next
+    significant candidate, or none; a candidate whose own fit passes, or that has no own
+    fit of the round, is left as judged."""
+    judged = [
+        candidate_result("offset_force", [1.0, 1.0], rms_m=1e-7),
+        candidate_result("backlash", [2.0, 2.0], rms_m=2e-7),
+        candidate_result("gms", [3.0, 3.0], rms_m=3e-7),
+    ]
+    own = {
+        "offset_force": dc.replace(judged[0], null_failed=True, null_p_value=0.534),
+        "backlash": judged[1],
+    }
+    out = without_unsupported(judged, own)
+    assert [r.effect for r in out] == ["offset_force", "backlash", "gms"]
+    assert [r.significant for r in out] == [False, True, True]
+    why = out[0].reasons[-1]
+    assert why.startswith("its fit on the training experiments, which a selection carries")
+    assert "does not differ from none (Wald p = 0.534)" in why
+    assert out[1] is judged[1] and out[2] is judged[2]
+    st = dc.replace(DiagnosisSettings(), occam_tie_break=False)
+    pick = pick_winner(out, st)
+    assert pick is not None and pick.effect == "backlash"
+    alone = without_unsupported(judged[:1], own)
+    assert pick_winner(alone, st) is None
+    assert without_unsupported(judged[:1], {})[0].significant
 
 
 @pytest.mark.parametrize("preset", ["seed", "seed_biased", "emps"])

@@ -45,6 +45,7 @@ from .select import (
     rank_key,
     relative_terms,
     significance_mode,
+    without_unsupported,
 )
 from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
 from .signatures import SignatureJudge, misses
@@ -743,13 +744,17 @@ def diagnose_experiments(
                 progress,
             )
             judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
+            own = {r.effect: r for r in results}
+            # The selection carries the round's own fit (the training experiments): an
+            # effect whose own fit does not differ from none is not named on the folds'
+            # refits, which saw the validation experiments too.
+            judged = without_unsupported(judged, own)
             cross_judged.append(judged)
             # A tie among the cross-judged candidates is broken on the signatures of the
             # round's own fits (all starts, the training experiments; the fits the report's
             # signature table shows), not on a fold's local refit: that fold leaves out a
             # third of the experiments, possibly those that show the effect, so its fit
             # may have drifted away from it.
-            own = {r.effect: r for r in results}
 
             def on_own_fits(
                 tied: Sequence[CandidateResult], own: Mapping[str, CandidateResult] = own
@@ -1709,7 +1714,8 @@ def _verdict(
                 "error, which every other law also leaves"
             )
     null_p = null_test_p(fits[0], null_params)
-    if st.null_test and null_p is not None and null_p >= st.p_value and not large:
+    null_failed = bool(st.null_test and null_p is not None and null_p >= st.p_value and not large)
+    if null_failed:
         ok = False
         sizes = ", ".join(
             f"{n.split('.', 1)[1]} = {_with_se(fits[0], n)} {p.unit} (none: {p.null:g})"
@@ -1773,6 +1779,7 @@ def _verdict(
         p_level=alpha,
         null_params=tuple(null_params),
         null_p_value=null_p,
+        null_failed=null_failed,
     )
 
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -69,6 +69,7 @@ __all__ = [
     "relative_terms",
     "significance_mode",
     "too_few_to_test",
+    "without_unsupported",
 ]
 
 
@@ -125,6 +126,9 @@ class CandidateResult:
     #: such parameter, or no covariance).
     null_params: tuple[tuple[str, Param], ...] = ()
     null_p_value: float | None = None
+    #: The null test failed (:attr:`DiagnosisSettings.null_test`): the fitted size does not
+    #: differ from none and the explained gap is not large.
+    null_failed: bool = False
     #: Every rule of significance but the bootstrap's level holds (:func:`holm_levels`).
     other_rules_pass: bool = True
 
@@ -385,6 +389,30 @@ def null_test_p(fit: Fit, params: Sequence[tuple[str, Param]]) -> float | None:
     rank = int(np.linalg.matrix_rank(sub, hermitian=True))
     w = float(d @ np.linalg.pinv(sub, hermitian=True) @ d)
     return float(chi2.sf(w, rank))
+
+
+def without_unsupported(
+    judged: Sequence[CandidateResult], own: Mapping[str, CandidateResult]
+) -> list[CandidateResult]:
+    """``judged`` (a round's candidates judged on every experiment, each refitted on folds
+    that hold validation experiments too) with every significant one whose own fit of the
+    round (``own``: by effect, fitted on the training experiments; the fit a selection
+    carries into the model) failed the null test marked not significant, with the reason:
+    the effect it would name is not there in the fit the selection would carry, only in
+    fits that saw the validation experiments."""
+    out = []
+    for r in judged:
+        mine = own.get(r.effect)
+        if r.significant and mine is not None and mine.null_failed:
+            reason = (
+                "its fit on the training experiments, which a selection carries, does not "
+                "differ from none"
+                + ("" if mine.null_p_value is None else f" (Wald p = {mine.null_p_value:.3f})")
+                + ": the effect shows only in refits that saw the validation experiments"
+            )
+            r = replace(r, significant=False, reasons=[*r.reasons, reason])
+        out.append(r)
+    return out
 
 
 def pick_winner(

@@ -82,6 +82,9 @@ class DiagnosisSettings:
     #: large). The gap test asks whether the candidate predicts better; this one whether
     #: the effect it names is there: a form error of the nominal model that a small offset
     #: partly takes up can pass the first with an offset whose confidence interval holds 0.
+    #: Judged on every experiment (:attr:`cross_judge_folds`), a candidate whose own fit of
+    #: the round fails it is not selected on the folds' refits
+    #: (:func:`~nanostage.diagnosis.select.without_unsupported`).
     null_test: bool = True
     penalty_base: float = 0.03
     penalty_per_param: float = 0.02
