@@ -1801,6 +1801,15 @@ def test_judged_on_every_experiment_an_effect_absent_from_its_own_fit_is_not_nam
     alone = without_unsupported(judged[:1], own)
     assert pick_winner(alone, st) is None
     assert without_unsupported(judged[:1], {})[0].significant
+    # report.md's cross-judged table says why a candidate was not significant.
+    from nanostage.diagnosis.report import _cross_judged_table
+
+    table = _cross_judged_table(
+        [{"round": 1, "candidates": [{**r.to_dict(), "why": r.reasons} for r in out]}]
+    )
+    rows = [line for line in table.splitlines() if line.startswith("| 1 | `")]
+    assert len(rows) == 3 and "| no | its fit on the training experiments" in rows[0]
+    assert rows[1].endswith("| yes | — |")
 
 
 @pytest.mark.parametrize("preset", ["seed", "seed_biased", "emps"])

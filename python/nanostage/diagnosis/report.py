@@ -542,7 +542,14 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
 
 def _cross_judged_table(rounds: Any) -> str:
     """The report's ``cross_judged`` as one table (round, effect, geometric shrink, p,
-    significant); empty without entries."""
+    significant, and why not: the rules a candidate failed); empty without entries."""
+
+    def why_not(c: Mapping[str, Any]) -> str:
+        why = c.get("why")
+        if c.get("significant") or not isinstance(why, list | tuple):
+            return "—"
+        return "; ".join(_md_escape(str(w)) for w in why) or "—"
+
     rows = [
         [
             str(r.get("round")),
@@ -550,6 +557,7 @@ def _cross_judged_table(rounds: Any) -> str:
             _pct(c.get("geometric_shrink")),
             _fixed3(c.get("p_value")),
             "yes" if c.get("significant") else "no",
+            why_not(c),
         ]
         for r in (rounds if isinstance(rounds, list | tuple) else [])
         if isinstance(r, Mapping)
@@ -558,7 +566,7 @@ def _cross_judged_table(rounds: Any) -> str:
     ]
     if not rows:
         return ""
-    return _table(["round", "effect", "geometric shrink", "p", "significant"], rows)
+    return _table(["round", "effect", "geometric shrink", "p", "significant", "why not"], rows)
 
 
 def _extra_refit_lines(refits: Any) -> list[str]:
