@@ -431,7 +431,8 @@ def test_the_benchmark_command_writes_the_encoders_readings_with_encoder(
     (scaled / "benchmark.json").write_text(json.dumps(summary), encoding="utf-8")
     pooled = ibm.pooled_rows([out, scaled])
     assert pooled[1]["hidden_size_counts"] == stored and pooled[1]["magnitude_scale"] == 0.3
-    assert pooled[0]["hidden_size_counts"] in (0.0, pytest.approx(stored / 0.3))
+    unscaled = iso_truth.draw_case(pooled[0]["hidden"], 5 * 100_000)
+    assert pooled[0]["hidden_size_counts"] == unscaled.hidden_size_counts
     assert ibm.main([str(out), str(scaled)]) == 0
     assert ibm.main([str(tmp_path / "missing")]) == 2
     (tmp_path / "other").mkdir()
@@ -677,8 +678,9 @@ def test_the_scan_keeps_a_hunting_sizes_change_per_direction_and_the_rest_as_sca
 
 def _few_readings(case: iso_truth.TruthCase, targets: int, runs: int) -> iso_truth.TruthCase:
     keep = sorted({r["target_m"] for r in case.rows})[:targets]
-    rows = [r for r in case.rows if r["target_m"] in keep and r["run"] <= runs]
-    return iso_truth.TruthCase(case.effect, case.parameters, rows)
+    kept = [r["target_m"] in keep and r["run"] <= runs for r in case.rows]
+    rows = [r for r, k in zip(case.rows, kept, strict=True) if k]
+    return iso_truth.TruthCase(case.effect, case.parameters, rows, case.hidden_error_m[kept])
 
 
 HUNT = IsoDiagnosisSettings(

@@ -98,19 +98,18 @@ class TruthCase:
         effect: str,
         parameters: dict[str, float],
         rows: list[dict[str, Any]],
-        hidden_error_m: np.ndarray | None = None,
+        hidden_error_m: np.ndarray,
     ):
         self.effect = effect
         self.parameters = parameters
         self.rows = rows
-        self.hidden_error_m = np.zeros(len(rows)) if hidden_error_m is None else hidden_error_m
+        self.hidden_error_m = hidden_error_m
 
     @property
     def hidden_size_counts(self) -> float:
         """The hidden error's RMS about its mean, in encoder counts (0 without an effect):
         the size the detection limit is read against."""
-        e = self.hidden_error_m
-        return float(np.sqrt(np.mean((e - np.mean(e)) ** 2)) / COUNT_M) if e.size else 0.0
+        return float(np.std(self.hidden_error_m)) / COUNT_M if self.hidden_error_m.size else 0.0
 
 
 def _move_time_s(distance_m: float) -> float:
@@ -308,8 +307,10 @@ def draw_case(effect: str, seed: int, *, scale: float = 1.0) -> TruthCase:
         if key not in bias:
             bias[key] = float(rng.uniform(-0.3, 0.3)) * COUNT_M
     noise_m = float(rng.uniform(2e-9, 10e-9))
+    # What the effect adds to each reading; a friction scatter's stop replaces (a share of)
+    # the nominal stop.
+    hidden_m = err - scale * stop if effect == "friction_scatter" else err
     rows = []
-    hidden_m = np.array(err, dtype=float)
     for k, r in enumerate(sched):
         loop = stop[k] + bias[(round(r["target"], 9), r["direction"])]
         if effect in IN_LOOP:
@@ -317,7 +318,6 @@ def draw_case(effect: str, seed: int, *, scale: float = 1.0) -> TruthCase:
             # stop within the dead zone takes the place of the nominal stop.
             if effect == "friction_scatter":
                 loop -= scale * stop[k]
-                hidden_m[k] = err[k] - scale * stop[k]
             loop += err[k]
             dev = loop
         else:
