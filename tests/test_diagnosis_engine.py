@@ -31,6 +31,7 @@ from nanostage.diagnosis.benchmark import (
     _hidden,
     design_reference,
     draw_truth,
+    median_phase_seconds,
     oracle_model,
     run_benchmark,
     truth_starts,
@@ -104,7 +105,13 @@ from nanostage.diagnosis.select import (
     too_few_to_test,
     without_unsupported,
 )
-from nanostage.diagnosis.settings import RANKINGS, DiagnosisSettings, with_starts
+from nanostage.diagnosis.settings import (
+    RANKINGS,
+    DiagnosisSettings,
+    PhaseClock,
+    phase_totals,
+    with_starts,
+)
 from nanostage.diagnosis.signatures import SIGNATURE_UNITS
 from nanostage.effects import (
     EFFECT_NAMES,
@@ -1293,7 +1300,7 @@ def test_diagnosis_calls_nothing_when_the_model_is_right(tmp_path: Path) -> None
     one = diagnose(m, None, settings=dc.replace(FAST, parallel_candidates=1), progress=False)
     # Bookkeeping aside (time, and how many simulations were looked up: two candidates
     # fitted at once may both simulate a pair neither has stored yet).
-    book = {"timing_s", "simulations", "model_file"}
+    book = {"timing_s", "simulations", "phases", "model_file"}
     assert {k: v for k, v in one.report.items() if k not in book} == {
         k: v for k, v in d.report.items() if k not in book
     }
@@ -1380,12 +1387,30 @@ def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
     plain = diagnose(
         m, None, settings=dc.replace(st, simulation_cache_mb=0.0), progress=False
     ).report
-    book = {"timing_s", "simulations"}
+    book = {"timing_s", "simulations", "phases"}
     assert {k: v for k, v in cached.items() if k not in book} == {
         k: v for k, v in plain.items() if k not in book
     }
     assert plain["simulations"] == {"simulated": None, "reused": 0}
     assert cached["simulations"]["reused"] > 0 and cached["simulations"]["simulated"] > 0
+    # Where the time went: every simulation the loop ran falls in one of its phases, in
+    # the order they ran; the report's own phases come after (the cross-fit only when
+    # something was selected). Without the cache nothing counts them.
+    phases = cached["phases"]
+    loop_phases = [e for e in phases if e["phase"] not in ("report", "cross-fit")]
+    assert sum(e["simulated"] for e in loop_phases) == cached["simulations"]["simulated"]
+    assert [(e["phase"], e["round"]) for e in phases[:3]] == [
+        ("calibration", None),
+        ("screening", 1),
+        ("refinement", 1),
+    ]
+    assert [e["phase"] for e in phases[-2:]] == ["report", "cross-fit"] and cached["selected"]
+    assert all(e["seconds"] >= 0.0 and e["simulated"] >= 0 for e in phases)
+    assert sum(e["seconds"] for e in loop_phases) <= cached["timing_s"]
+    assert all(e["simulated"] is None for e in plain["phases"])
+    assert [(e["phase"], e["round"]) for e in plain["phases"]] == [
+        (e["phase"], e["round"]) for e in phases
+    ]
     with pytest.raises(ValueError, match=r"simulation_cache_mb = -1.0: must be ≥ 0"):
         diagnose(m, None, settings=dc.replace(st, simulation_cache_mb=-1.0), progress=False)
     for ratio in (0.5, float("nan")):
@@ -1395,6 +1420,41 @@ def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
     for share in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match=r"friction_model_share = .*must be in \[0, 1\]"):
             diagnose(m, None, settings=dc.replace(st, friction_model_share=share), progress=False)
+
+
+def test_phase_clock_charges_each_lap_to_its_phase_and_round() -> None:
+    """A lap charges the time and the simulations since the last lap; the same phase in the
+    same round adds up, another round has its own entry; the totals sum over the rounds and
+    the benchmark's medians count a phase a case did not run as 0; the report shows them."""
+    clock_s = iter([10.0, 11.5, 12.0, 14.0, 14.25, 20.0, 25.75])
+    count = iter([3, 7, 7, 20, 21])
+    clock = PhaseClock(lambda: next(count), lambda: next(clock_s))
+    clock.lap("calibration")  # 1.5 s, 4 simulations
+    clock.lap("screening", 1)  # 0.5 s, 0
+    clock.lap("screening", 2)  # 2 s, 13
+    clock.lap("screening", 1)  # 0.25 s, 1: added to round 1's
+    assert clock.entries == [
+        {"phase": "calibration", "round": None, "seconds": 1.5, "simulated": 4},
+        {"phase": "screening", "round": 1, "seconds": 0.75, "simulated": 1},
+        {"phase": "screening", "round": 2, "seconds": 2.0, "simulated": 13},
+    ]
+    assert phase_totals(clock.entries) == {"calibration": 1.5, "screening": 2.75}
+    bare = PhaseClock(now=lambda: next(clock_s))
+    bare.lap("report")
+    assert bare.entries == [{"phase": "report", "round": None, "seconds": 5.75, "simulated": None}]
+    rows = [
+        {"phase_seconds": {"calibration": 1.0, "screening": 4.0}},
+        {"phase_seconds": {"calibration": 3.0}},
+        {"phase_seconds": {"calibration": 2.0, "screening": 6.0, "cross-fit": 9.0}},
+    ]
+    assert median_phase_seconds(rows) == {"calibration": 2.0, "screening": 4.0, "cross-fit": 0.0}
+    assert median_phase_seconds([]) == {}
+    md = markdown_report({"candidates": [], "timing_s": 3.0, "phases": clock.entries})
+    assert "- **Time:** 4.2 s (see *Where the time went*)" in md
+    assert "| screening | 2 | 2.0 | 47% | 13 |" in md
+    assert "| calibration | — | 1.5 | 35% | 4 |" in md
+    assert "- **Time:** 3.0 s\n" in markdown_report({"candidates": [], "timing_s": 3.0})
+    assert "Where the time went" not in markdown_report({"candidates": [], "phases": "x"})
 
 
 def test_simulation_cache_looks_up_repeats_and_drops_the_least_recently_used() -> None:

@@ -57,7 +57,7 @@ from .case_manifest import case_manifest_head
 from .manifest import load_manifest
 from .run import diagnose, model_gap, readings_gap
 from .scatter import MAX_LEVEL_SCATTER
-from .settings import DEFAULT_LEVEL_SCATTER, DiagnosisSettings
+from .settings import DEFAULT_LEVEL_SCATTER, DiagnosisSettings, phase_totals
 from .traces import write_trace_csv
 
 __all__ = [
@@ -71,6 +71,7 @@ __all__ = [
     "draw_truth",
     "generate_case",
     "independent_oracles",
+    "median_phase_seconds",
     "oracle_model",
     "run_benchmark",
     "truth_starts",
@@ -482,6 +483,18 @@ def independent_oracles(hidden: str, seed: int, manifest: Path) -> tuple[float, 
     return float(gaps[0]), float(gaps[1])
 
 
+def median_phase_seconds(rows: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """The median over the cases of each phase's seconds (``phase_seconds`` of the
+    rows; a phase a case did not run counts 0), the phases in the order they first came."""
+    names: dict[str, None] = {}
+    for r in rows:
+        names.update(dict.fromkeys(r.get("phase_seconds") or {}))
+    return {
+        n: float(np.median([(r.get("phase_seconds") or {}).get(n, 0.0) for r in rows]))
+        for n in names
+    }
+
+
 def _check_cell(row: dict[str, Any]) -> str:
     c = row["truth_check"]
     if c is None:
@@ -695,6 +708,8 @@ def _run_benchmark(
                 else 1.0 - oracle / bare,
                 "explained_fraction": rep["explained_fraction"],
                 "seconds": seconds,
+                # The diagnosis's seconds per phase, summed over its rounds.
+                "phase_seconds": phase_totals(rep.get("phases") or []),
                 "truth": drawn["parameters"],
                 "truth_check": check,
             }
@@ -728,6 +743,7 @@ def _run_benchmark(
         confusion[r["hidden"]][r["found"]] += 1
     oracles = [r["oracle_shrink"] for r in eff if r["oracle_shrink"] is not None]
     effect_shrinks = [r["effect_shrink"] for r in eff if r["effect_shrink"] is not None]
+    phase_medians = median_phase_seconds(rows)
     summary = {
         "cases": cases,
         "seed": seed,
@@ -750,6 +766,7 @@ def _run_benchmark(
         if eff and all(r["crossfit_shrink"] is not None for r in eff)
         else None,
         "median_seconds_per_case": float(np.median([r["seconds"] for r in rows])),
+        "median_phase_seconds": phase_medians,
         "detectable_cases": len(detectable) if truth_check else None,
         "top1_detectable": float(np.mean([r["correct"] for r in detectable]))
         if detectable
@@ -823,6 +840,17 @@ def _run_benchmark(
                 f"cases detectable; top-1 over them {summary['top1_detectable']:.0%}.",
                 "",
             ]
+        ),
+        *(
+            [
+                "Median seconds per case by phase of the diagnosis (a phase a case does "
+                "not run counts 0): "
+                + ", ".join(f"{k} {v:.0f}" for k, v in phase_medians.items())
+                + ".",
+                "",
+            ]
+            if phase_medians
+            else []
         ),
         "Confusion matrix (rows: hidden effect; columns: first selected effect):",
         "",

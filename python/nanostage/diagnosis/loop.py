@@ -47,7 +47,14 @@ from .select import (
     significance_mode,
     without_unsupported,
 )
-from .settings import Adapt, DiagnosisSettings, FloatArray, print_progress, with_starts
+from .settings import (
+    Adapt,
+    DiagnosisSettings,
+    FloatArray,
+    PhaseClock,
+    print_progress,
+    with_starts,
+)
 from .signatures import SignatureJudge, misses
 
 FRICTION_MODELS = ("coulomb_viscous", "stribeck", "dahl", "lugre", "gms")
@@ -453,7 +460,8 @@ def diagnose_experiments(
     CandidateResult, best first), ``selected`` (names), ``final`` (Fit of the first fold),
     ``final_validation_ms``, ``skipped`` (name → reason), ``refit_control`` (the rounds in
     which refitting the model before from a candidate's free values improved it),
-    ``timing_s``, ``simulations`` (``simulated``: simulations run, None without the
+    ``timing_s``, ``phases`` (a :class:`~.settings.PhaseClock`: the time and simulations
+    per phase and round), ``simulations`` (``simulated``: simulations run, None without the
     cache; ``reused``: looked up in the :class:`SimulationCache`) and ``cache`` (that
     cache, or None: the report's simulations of the same fits look it up).
 
@@ -517,6 +525,8 @@ def diagnose_experiments(
             SimulationCache(st.simulation_cache_mb * 1e6) if st.simulation_cache_mb > 0 else None
         ),
     )
+    cache = ctx.cache
+    clock = PhaseClock((lambda: cache.misses) if cache is not None else None)
     # The marks of the traces (limit cycles, rest and ramp commands, breakaway) judge the
     # candidates of a tie that the validation gap cannot break (pick_winner).
     judge = SignatureJudge(
@@ -602,6 +612,7 @@ def diagnose_experiments(
                 "calibrating again",
                 progress,
             )
+    clock.lap("calibration")
     selected: list[str] = []
     rounds: list[list[CandidateResult]] = []
     # Per round with :attr:`DiagnosisSettings.cross_judge_folds`: its refitted candidates
@@ -643,6 +654,7 @@ def diagnose_experiments(
                 progress,
             )
         results.sort(key=ranked)
+        clock.lap("screening", rnd + 1)
         # Refine the best few with all starts (warm, the manifest's prior, Latin
         # hypercube), then rank again.
         by_name = {c.name: (i, c) for i, c in enumerate(cand_now)}
@@ -688,6 +700,7 @@ def diagnose_experiments(
         _refine(top, now, ctx, results, held, skipped, rnd, progress, executor)
         results = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
         results.sort(key=ranked)
+        clock.lap("refinement", rnd + 1)
         # Refitting alone: a candidate's fit moves the free nominal parameters too, and
         # may have found a better optimum of the model *without* the effect. Refit the
         # model before from each significant candidate's free values; a better
@@ -713,6 +726,7 @@ def diagnose_experiments(
             results = [_rejudged(ctx, r, current_ms, current_cmd, current_units) for r in results]
             results.sort(key=ranked)
         results = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
+        clock.lap("refit control", rnd + 1)
         rounds.append(results)
         if rnd == 0:
             pool_names = [r.effect for r in results]
@@ -731,6 +745,7 @@ def diagnose_experiments(
             results[:] = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
             results.sort(key=ranked)
             best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
+        clock.lap("selection", rnd + 1)
         if st.cross_judge_folds > 1 and len(ctx.folds) == 1:
             # Judged again on every experiment: the round picks among its refitted
             # candidates (the winner above among them) by these results, and selects that
@@ -772,6 +787,7 @@ def diagnose_experiments(
                     f"shrink {pick.geometric_shrink:.1%}, p = {pick.p_value:.3f}",
                     progress,
                 )
+            clock.lap("judged on every experiment", rnd + 1)
         if best is None:
             break
         selected.append(best.effect)
@@ -806,6 +822,8 @@ def diagnose_experiments(
         "skipped": skipped,
         "refit_control": refits,
         "timing_s": time.perf_counter() - t_start,
+        # Where the time went, per phase and round (the caller laps its own phases on it).
+        "phases": clock,
         "signature_judge": judge,
         # Per round, the signature χ² of each candidate its deciding tie put before the
         # judge (the last judgement: after any refit, the cross-judged one where there is).

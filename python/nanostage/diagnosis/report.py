@@ -535,9 +535,37 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
             "experiment(s) in all"
         )
     t = _num(report.get("timing_s"))
-    if t is not None:
+    spent = _phase_rows(report.get("phases"))
+    if spent:
+        total = sum(float(e["seconds"]) for e in report["phases"])
+        lines.append(f"- **Time:** {total:.1f} s (see *Where the time went*)")
+    elif t is not None:
         lines.append(f"- **Time:** {t:.1f} s")
     return "\n".join(lines) + "\n" if lines else ""
+
+
+def _phase_rows(phases: Any) -> list[list[str]]:
+    """The rows of *Where the time went* from the report's ``phases`` (the entries of a
+    :class:`~.settings.PhaseClock`); none when there are none or they are malformed."""
+    if not isinstance(phases, list | tuple) or not phases:
+        return []
+    if not all(isinstance(e, Mapping) and _num(e.get("seconds")) is not None for e in phases):
+        return []
+    total = sum(float(e["seconds"]) for e in phases)
+    rows = []
+    for e in phases:
+        sec = float(e["seconds"])
+        sims = e.get("simulated")
+        rows.append(
+            [
+                _md_escape(str(e.get("phase", ""))),
+                "—" if e.get("round") is None else str(e["round"]),
+                f"{sec:.1f}",
+                f"{sec / total:.0%}" if total > 0 else "—",
+                "—" if sims is None else f"{int(sims):,}".replace(",", " "),
+            ]
+        )
+    return rows
 
 
 def _cross_judged_table(rounds: Any) -> str:
@@ -1013,6 +1041,14 @@ def markdown_report(
     if lc:
         out.append("## Limit cycles in hold\n")
         out.append(lc)
+    spent = _phase_rows(report.get("phases"))
+    if spent:
+        out.append("## Where the time went\n")
+        out.append(
+            "Wall time and simulations run per phase (a simulation: one experiment of one "
+            "model; those looked up in the diagnosis's cache are not counted).\n"
+        )
+        out.append(_table(["phase", "round", "time [s]", "share", "simulations"], spent, "---:"))
     skipped = report.get("skipped")
     if isinstance(skipped, Mapping) and skipped:
         out.append("## Not fitted\n")
@@ -1051,6 +1087,7 @@ def markdown_report(
         "explained_fraction",
         "signatures",
         "timing_s",
+        "phases",
     }
     extra = [
         [_md_escape(str(k)) + _unit(str(k)), _fmt(str(k), v)]

@@ -702,8 +702,13 @@ def diagnose(
         progress=progress,
         executor=executor,
     )
+    clock = out["phases"]
     report = assemble_report(out, folds, adapt, _lead(nominal), st, [c.name for c in cands])
+    clock.lap("report")
     report["crossfit"] = _crossfit(setup, out, st, _lead(nominal), progress)
+    if report["crossfit"] is not None:
+        clock.lap("cross-fit")
+    report["phases"] = [dict(e) for e in clock.entries]
     report["manifest"] = str(m.path if manifest_path is None else manifest_path)
     report["calibration_at_bounds"] = {
         "nominal": at_bounds(out["nominal"], free),

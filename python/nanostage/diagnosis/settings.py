@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -30,6 +32,8 @@ __all__ = [
     "RANKINGS",
     "SIGNIFICANCES",
     "DiagnosisSettings",
+    "PhaseClock",
+    "phase_totals",
     "print_progress",
     "with_starts",
 ]
@@ -350,3 +354,55 @@ def print_progress(msg: str, enabled: bool) -> None:
         # (print writes them separately) would glue the next message to this line.
         sys.stderr.write(msg + "\n")
         sys.stderr.flush()
+
+
+@dataclass(slots=True)
+class PhaseClock:
+    """Where a diagnosis spends its time: the wall time and the simulations run between
+    one :meth:`lap` and the next, per phase and round (a phase lapped again in the same
+    round adds to its entry). ``simulated``: the number of simulations run so far (the
+    diagnosis's :attr:`~.objective.SimulationCache.misses`), or None without a count
+    (then each entry's ``simulated`` is None). Laps are taken on one thread between the
+    phases, so the counts of concurrent fits within a phase all fall in that phase."""
+
+    simulated: Callable[[], int] | None = None
+    #: The wall clock, s.
+    now: Callable[[], float] = time.perf_counter
+    entries: list[dict[str, Any]] = field(default_factory=list)
+    _time: float = 0.0
+    _count: int = 0
+
+    def __post_init__(self) -> None:
+        self._time = self.now()
+        self._count = self.simulated() if self.simulated else 0
+
+    def lap(self, phase: str, round_: int | None = None) -> None:
+        """Charge the time and simulations since the last lap to ``phase`` (of round
+        ``round_``, 1-based; None: not part of a round)."""
+        now = self.now()
+        count = self.simulated() if self.simulated else 0
+        seconds, sims = now - self._time, count - self._count
+        self._time, self._count = now, count
+        for e in self.entries:
+            if e["phase"] == phase and e["round"] == round_:
+                e["seconds"] += seconds
+                if e["simulated"] is not None:
+                    e["simulated"] += sims
+                return
+        self.entries.append(
+            {
+                "phase": phase,
+                "round": round_,
+                "seconds": seconds,
+                "simulated": sims if self.simulated else None,
+            }
+        )
+
+
+def phase_totals(entries: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Seconds per phase summed over the rounds of :attr:`PhaseClock.entries`, in the order
+    the phases first came."""
+    out: dict[str, float] = {}
+    for e in entries:
+        out[str(e["phase"])] = out.get(str(e["phase"]), 0.0) + float(e["seconds"])
+    return out
