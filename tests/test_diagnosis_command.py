@@ -36,6 +36,7 @@ from nanostage.diagnosis.objective import (
     proportional_gain_v_per_m,
     simulate_readings_and_commands,
 )
+from nanostage.diagnosis.report import markdown_report
 from nanostage.diagnosis.run import _setup, experiment_advice, lone_largest, unexplained_gap
 from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.settings import DiagnosisSettings
@@ -260,8 +261,11 @@ def test_a_friction_law_must_explain_most_of_the_gap() -> None:
 def test_unexplained_gap_names_the_best_partial_explanations() -> None:
     st = DiagnosisSettings()
 
-    def res(name: str, shrink: float) -> CandidateResult:
-        return cast(CandidateResult, SimpleNamespace(effect=name, shrink=shrink, reasons=["x"]))
+    def res(name: str, shrink: float, geometric: float = 0.1) -> CandidateResult:
+        return cast(
+            CandidateResult,
+            SimpleNamespace(effect=name, shrink=shrink, geometric_shrink=geometric, reasons=["x"]),
+        )
 
     first = [res("offset_force", 0.46), res("amplifier_dynamics", 0.26), res("lugre", -0.1)]
     u = unexplained_gap(290e-9, 29e-9, [], first, st)
@@ -282,6 +286,31 @@ def test_unexplained_gap_names_the_best_partial_explanations() -> None:
         ("amplifier_dynamics", 0.31, "every experiment"),
         ("offset_force", 0.12, "every experiment"),
     ]
+    # The largest share of the pooled gap first, whatever the round's order (by the
+    # geometric shrink): a candidate that removes half of the pooled gap by fixing its
+    # largest experiment while worsening the others comes before two that remove nothing.
+    judged = [
+        res("frictional_memory", 0.0035, 0.019),
+        res("encoder_cyclic_error", 0.003, -0.0001),
+        res("asymmetric_friction", 0.45, -0.18),
+        res("offset_force", -0.1, -0.2),
+    ]
+    u = unexplained_gap(290e-9, 29e-9, [], first, st, judged_round=judged)
+    assert u is not None
+    assert [(c["effect"], c["geometric_shrink"]) for c in u["partial_explanations"]] == [
+        ("asymmetric_friction", -0.18),
+        ("frictional_memory", 0.019),
+        ("encoder_cyclic_error", -0.0001),
+    ]
+    assert unexplained_gap(290e-9, 29e-9, [], first, st, judged_round=judged, top=1) == {
+        **u,
+        "partial_explanations": u["partial_explanations"][:1],
+    }
+    md = markdown_report({"candidates": [], "unexplained": u})
+    assert (
+        "best partial explanations: `asymmetric_friction` (shrink 45%, geometric -18%, judged "
+        "on every experiment), `frictional_memory` (shrink 0%, geometric 2%" in md
+    )
     empty = unexplained_gap(290e-9, 29e-9, [], first, st, judged_round=[])
     assert empty is not None
     assert empty["partial_explanations"][0]["judged"] == "validation experiments"

@@ -495,6 +495,11 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
     if isinstance(un_gap, Mapping) and _num(un_gap.get("gap_rms_m")) is not None:
         parts = [
             f"`{_md_escape(str(c.get('effect')))}` (shrink {float(c.get('shrink', 0.0)):.0%}"
+            + (
+                f", geometric {float(c['geometric_shrink']):.0%}"
+                if _num(c.get("geometric_shrink")) is not None
+                else ""
+            )
             + (f", judged on {c['judged']}" if isinstance(c.get("judged"), str) else "")
             + ")"
             for c in un_gap.get("partial_explanations") or []

@@ -1195,7 +1195,8 @@ def unexplained_gap(
     """With nothing selected while the validation gap is above
     :attr:`DiagnosisSettings.explainable_factor` noise floors: the gap, its ratio to the
     floor and the best ``top`` partial explanations (the round-1 candidates with a positive
-    shrink, best first, with why each was not selected); else None. The report says so
+    shrink of that gap, the largest first, each with its geometric shrink, by which the
+    round ranked them, and why it was not selected); else None. The report says so
     plainly instead of "nothing found".
 
     With ``judged_round`` (round 1's refitted candidates judged on every experiment, by
@@ -1209,10 +1210,18 @@ def unexplained_gap(
         if judged_round
         else (first_round, "validation experiments")
     )
+    # Ordered by the share of the pooled gap each removes, the gap the sentence names
+    # (the round's own order, by the geometric shrink, may put a candidate that removes
+    # nothing of it before one that removes half).
     partial = [
-        {"effect": r.effect, "shrink": r.shrink, "why_not": r.reasons, "judged": judged}
-        for r in pool
-        if r.shrink > 0.0
+        {
+            "effect": r.effect,
+            "shrink": r.shrink,
+            "geometric_shrink": r.geometric_shrink,
+            "why_not": r.reasons,
+            "judged": judged,
+        }
+        for r in sorted((r for r in pool if r.shrink > 0.0), key=lambda r: -r.shrink)
     ][:top]
     return {
         "gap_rms_m": before_rms_m,
