@@ -2506,6 +2506,13 @@ def test_benchmark_scores_a_case_against_the_truths_own_model(tmp_path: Path) ->
     assert "truth's shrink" in md and "its effect's shrink" in md
     assert "Without its hidden effect the truth's own model" in md
     assert "seed 3, diagnosed with a run-to-run friction level scatter of 0.01." in md
+    # The case's seconds per phase are its report's, summed over the rounds; one case, so
+    # the medians are its own.
+    assert row["phase_seconds"] == phase_totals(report["phases"])
+    assert list(row["phase_seconds"])[:3] == ["calibration", "screening", "refinement"]
+    assert s["median_phase_seconds"] == row["phase_seconds"]
+    assert sum(row["phase_seconds"].values()) <= row["seconds"]
+    assert "Median seconds per case by phase of the diagnosis" in md
 
 
 def test_parameters_at_their_bounds_are_found_and_named() -> None:
