@@ -540,22 +540,22 @@ def _summary(report: Mapping[str, Any], sb: Any, sa: Any) -> str:
             "experiment(s) in all"
         )
     t = _num(report.get("timing_s"))
-    spent = _phase_rows(report.get("phases"))
+    spent, total = _phase_rows(report.get("phases"))
     if spent:
-        total = sum(float(e["seconds"]) for e in report["phases"])
         lines.append(f"- **Time:** {total:.1f} s (see *Where the time went*)")
     elif t is not None:
         lines.append(f"- **Time:** {t:.1f} s")
     return "\n".join(lines) + "\n" if lines else ""
 
 
-def _phase_rows(phases: Any) -> list[list[str]]:
+def _phase_rows(phases: Any) -> tuple[list[list[str]], float]:
     """The rows of *Where the time went* from the report's ``phases`` (the entries of a
-    :class:`~.settings.PhaseClock`); none when there are none or they are malformed."""
+    :class:`~.settings.PhaseClock`) and their total seconds; no rows (and 0) when there
+    are none or they are malformed."""
     if not isinstance(phases, list | tuple) or not phases:
-        return []
+        return [], 0.0
     if not all(isinstance(e, Mapping) and _num(e.get("seconds")) is not None for e in phases):
-        return []
+        return [], 0.0
     total = sum(float(e["seconds"]) for e in phases)
     rows = []
     for e in phases:
@@ -570,7 +570,7 @@ def _phase_rows(phases: Any) -> list[list[str]]:
                 "—" if sims is None else f"{int(sims):,}".replace(",", " "),
             ]
         )
-    return rows
+    return rows, total
 
 
 def _cross_judged_table(rounds: Any) -> str:
@@ -1046,7 +1046,7 @@ def markdown_report(
     if lc:
         out.append("## Limit cycles in hold\n")
         out.append(lc)
-    spent = _phase_rows(report.get("phases"))
+    spent, _ = _phase_rows(report.get("phases"))
     if spent:
         out.append("## Where the time went\n")
         out.append(
