@@ -33,6 +33,7 @@ __all__ = [
     "AT_BOUND",
     "Fit",
     "FitProblem",
+    "SecantJacobian",
     "at_bounds",
 ]
 
@@ -315,22 +316,33 @@ class FitProblem:
                 starts.append(u)
         starts = starts[: max(n_starts, 1)] if scan > 0 else starts
         best: Any = None
+        best_secant: SecantJacobian | None = None
         for u0 in starts:
+            secant = (
+                SecantJacobian(self, settings.diff_step, settings.jacobian_refresh)
+                if settings.jacobian_refresh > 1
+                else None
+            )
             sol = least_squares(
-                self._vector,
+                self._vector if secant is None else secant.fun,
                 np.clip(u0, 1.0, 2.0),
                 bounds=(1.0, 2.0),
                 method="trf",
+                jac="2-point" if secant is None else secant.jac,
                 diff_step=settings.diff_step,
                 max_nfev=settings.max_nfev_per_param * (k + 1),
                 x_scale=1.0,
                 xtol=1e-4,
                 ftol=1e-4,
                 gtol=1e-6,
-                workers=self._batch_map,
+                workers=self._batch_map if secant is None else None,
             )
             if best is None or sol.cost < best.cost:
-                best = sol
+                best, best_secant = sol, secant
+        if best_secant is not None and not best_secant.fresh:
+            # The uncertainties come from a difference Jacobian at the optimum, not from the
+            # last rank-one update.
+            best.jac = best_secant.differences(best.x, best.fun)
         values = [
             p.from_unit(float(x) - 1.0) for (_, p), x in zip(self.params, best.x, strict=True)
         ]
@@ -349,6 +361,69 @@ class FitProblem:
             system=system,
             unit_covariance=cov,
         )
+
+
+class SecantJacobian:
+    """The Jacobian of a :class:`FitProblem`'s scaled residual for one
+    :func:`scipy.optimize.least_squares` run (``fun`` and ``jac`` go to it): forward
+    differences, as scipy's ``2-point`` takes them (relative step ``diff_step``, backward
+    where the step would leave the upper bound 2; all points in one batch), at the start,
+    after a rejected trial step and at every ``refresh``-th accepted step; between them,
+    Broyden's rank-one update from the accepted step (``trf`` asks for the Jacobian only
+    at accepted points). A difference Jacobian costs one simulation batch per parameter,
+    the update none: with a dozen parameters the fit then runs a fraction of the
+    simulations. A rejected step means the linear model was poor, so the next Jacobian is
+    a difference one."""
+
+    def __init__(self, problem: FitProblem, diff_step: float, refresh: int) -> None:
+        self.problem = problem
+        self.diff_step = diff_step
+        self.refresh = refresh
+        #: Whether the last Jacobian returned was a difference one (not an update).
+        self.fresh = False
+        self._evaluated: tuple[FloatArray, FloatArray] | None = None
+        self._calls = 0  # residual evaluations since the last Jacobian
+        self._updates = 0  # rank-one updates since the last difference Jacobian
+        self._last: tuple[FloatArray, FloatArray, FloatArray] | None = None
+
+    def fun(self, u: FloatArray) -> FloatArray:
+        f = self.problem._vector(u)
+        self._evaluated = (np.array(u, dtype=np.float64), f)
+        self._calls += 1
+        return f
+
+    def differences(self, u: FloatArray, f: FloatArray) -> FloatArray:
+        """The forward-difference Jacobian at ``u`` (residual ``f``)."""
+        u = np.asarray(u, dtype=np.float64)
+        h = self.diff_step * np.maximum(1.0, np.abs(u))
+        h = np.where(u + h > 2.0, -h, h)
+        points = []
+        for i, hi in enumerate(h):
+            x = u.copy()
+            x[i] = u[i] + hi
+            points.append(x)
+        steps = [x[i] - u[i] for i, x in enumerate(points)]
+        columns = self.problem._vectors(points)
+        return np.column_stack([(c - f) / d for c, d in zip(columns, steps, strict=True)])
+
+    def jac(self, u: FloatArray) -> FloatArray:
+        u = np.array(u, dtype=np.float64)
+        e = self._evaluated
+        f = e[1] if e is not None and np.array_equal(e[0], u) else self.fun(u)
+        rejected = self._calls > 1
+        last = self._last
+        if last is None or rejected or self._updates + 1 >= self.refresh:
+            jac = self.differences(u, f)
+            self._updates, self.fresh = 0, True
+        else:
+            x0, f0, j0 = last
+            dx = u - x0
+            norm2 = float(dx @ dx)
+            jac = j0 + np.outer(f - f0 - j0 @ dx, dx / norm2) if norm2 > 0.0 else j0
+            self._updates, self.fresh = self._updates + 1, False
+        self._last = (u, f, jac)
+        self._calls = 0
+        return jac
 
 
 def _uncertainty(sol: Any, params: Sequence[tuple[str, Param]]) -> tuple[list[float], FloatArray]:

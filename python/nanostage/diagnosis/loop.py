@@ -485,6 +485,16 @@ def diagnose_experiments(
             f"DiagnosisSettings.cross_judge_folds = {st.cross_judge_folds!r}: must be an "
             "integer (folds of the cross-judging, at least 2; 0 or 1 turns it off)"
         )
+    if (
+        isinstance(st.jacobian_refresh, bool)
+        or not isinstance(st.jacobian_refresh, int)
+        or st.jacobian_refresh < 1
+    ):
+        raise ValueError(
+            f"DiagnosisSettings.jacobian_refresh = {st.jacobian_refresh!r}: must be an integer "
+            "≥ 1 (accepted steps between a fit's difference Jacobians; 1 takes one at every "
+            "step)"
+        )
     if not 0.0 <= st.friction_model_share <= 1.0:
         raise ValueError(
             f"DiagnosisSettings.friction_model_share = {st.friction_model_share!r}: must be "

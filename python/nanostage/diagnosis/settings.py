@@ -63,6 +63,15 @@ class DiagnosisSettings:
     n_starts_friction_models: int = 6
     max_nfev_per_param: int = 12
     diff_step: float = 0.03
+    #: Every how many accepted steps of a fit its Jacobian is taken again by forward
+    #: differences (one simulation batch per parameter); between them Broyden's rank-one
+    #: update stands in (:class:`~nanostage.diagnosis.fit.SecantJacobian`), and after a
+    #: rejected step it is always taken again. 1: differences at every step (scipy's
+    #: ``2-point``, the earlier default). On the two speed cases of the independent
+    #: family (development seed 10100, ``benches/diagnosis_speed.py``) 4 ran half the
+    #: simulations; the compliance case took 212 s instead of 360 s with the same
+    #: selection.
+    jacobian_refresh: int = 4
     #: Resamples of each bootstrap p. Its Monte Carlo error is √(p(1−p)/n): at the levels
     #: a family of 8–17 candidates is judged at (0.003–0.006), 400 resamples left an error
     #: (0.003) as large as the level, so whether a p near it passed was decided by the
