@@ -408,9 +408,9 @@ class SecantJacobian:
 
     def jac(self, u: FloatArray) -> FloatArray:
         u = np.array(u, dtype=np.float64)
+        rejected = self._calls > 1
         e = self._evaluated
         f = e[1] if e is not None and np.array_equal(e[0], u) else self.fun(u)
-        rejected = self._calls > 1
         last = self._last
         if last is None or rejected or self._updates + 1 >= self.refresh:
             jac = self.differences(u, f)

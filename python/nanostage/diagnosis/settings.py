@@ -69,7 +69,7 @@ class DiagnosisSettings:
     #: rejected step it is always taken again. 1: differences at every step (scipy's
     #: ``2-point``, the earlier default). On the two speed cases of the independent
     #: family (development seed 10100, ``benches/diagnosis_speed.py``) 4 ran half the
-    #: simulations; the compliance case took 212 s instead of 360 s with the same
+    #: simulations; the compliance case took 192 s instead of 360 s with the same
     #: selection.
     jacobian_refresh: int = 4
     #: Resamples of each bootstrap p. Its Monte Carlo error is √(p(1−p)/n): at the levels
