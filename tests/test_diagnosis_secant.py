@@ -86,8 +86,9 @@ def test_broyden_update_between_difference_jacobians() -> None:
     np.testing.assert_allclose(j1 @ (x1 - x0), f1 - f0, rtol=1e-12, atol=1e-12)
     x2 = x1 + np.array([0.01, 0.03, -0.02])
     f2 = sec.fun(x2)
-    sec.jac(x2)
+    j2 = sec.jac(x2)
     assert not sec.fresh
+    np.testing.assert_allclose(j2 @ (x2 - x1), f2 - f1, rtol=1e-12, atol=1e-12)
     x3 = x2 + np.array([0.02, 0.0, 0.01])
     sec.fun(x3)
     sec.jac(x3)
@@ -101,7 +102,6 @@ def test_broyden_update_between_difference_jacobians() -> None:
     sec.fun(x5)
     sec.jac(x5)
     assert sec.fresh
-    del f2
 
 
 def test_same_optimum_as_two_point_for_fewer_evaluations() -> None:
