@@ -5,13 +5,16 @@ Coulomb level free."""
 from __future__ import annotations
 
 import dataclasses as dc
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 import nanostage as ns
-from nanostage.diagnosis.fit import Fit
+from nanostage.config import replace_paths
+from nanostage.diagnosis.candidates import Param
+from nanostage.diagnosis.fit import Fit, FitProblem
+from nanostage.diagnosis.manifest import load_manifest
 from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.effects import Effects, StochasticFriction
@@ -109,3 +112,42 @@ def candidate_result(
         log_occam=occam,
         validation_floor_ms=floor_ms,
     )
+
+
+def friction_problems(
+    manifest: Path,
+    *,
+    force_initial_n: float,
+    torque_upper_nm: float,
+    torque_initial_nm: float,
+) -> Callable[[], FitProblem]:
+    """New :class:`FitProblem` s on the first two experiments of ``manifest`` (no
+    per-experiment adaptation, two simulation threads), each fitting the table's Dahl
+    Coulomb force (20–40 N) and the motor's Coulomb torque (5e-5 N·m to
+    ``torque_upper_nm``) of its nominal model from the given initial values."""
+    man = load_manifest(manifest)
+    exps = [e for _, e in man.experiments()][:2]
+    free = [
+        (
+            "plant.dahl.coulomb_force_n",
+            Param(name="f", unit="N", lower=20, upper=40, initial=force_initial_n),
+        ),
+        (
+            "plant.motor_friction.coulomb_torque_nm",
+            Param(
+                name="t", unit="N·m", lower=5e-5, upper=torque_upper_nm, initial=torque_initial_nm
+            ),
+        ),
+    ]
+    nominal = man.system()
+
+    def problem() -> FitProblem:
+        return FitProblem(
+            free,
+            lambda v: replace_paths(nominal, {n: x for (n, _), x in zip(free, v, strict=True)}),
+            exps,
+            2,
+            lambda s, e: s,
+        )
+
+    return problem

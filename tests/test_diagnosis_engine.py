@@ -16,7 +16,12 @@ from typing import Any, cast
 
 import numpy as np
 import pytest
-from diagnosis_cases import candidate_result, simulated_experiment, step_case
+from diagnosis_cases import (
+    candidate_result,
+    friction_problems,
+    simulated_experiment,
+    step_case,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st_h
 
@@ -236,27 +241,12 @@ def test_batched_evaluations_equal_one_at_a_time(
     fit takes the same path as with scipy's own one-at-a-time evaluation."""
     import nanostage.diagnosis.fit as eng
 
-    m = _case(tmp_path, Effects(), seed=6)
-    man = load_manifest(m)
-    exps = [e for _, e in man.experiments()][:2]
-    free = [
-        ("plant.dahl.coulomb_force_n", Param(name="f", unit="N", lower=20, upper=40, initial=30.4)),
-        (
-            "plant.motor_friction.coulomb_torque_nm",
-            Param(name="t", unit="N·m", lower=5e-5, upper=2e-4, initial=1e-4),
-        ),
-    ]
-    nominal = man.system()
-
-    def problem() -> FitProblem:
-        return FitProblem(
-            free,
-            lambda v: replace_paths(nominal, {n: x for (n, _), x in zip(free, v, strict=True)}),
-            exps,
-            2,
-            lambda s, e: s,
-        )
-
+    problem = friction_problems(
+        _case(tmp_path, Effects(), seed=6),
+        force_initial_n=30.4,
+        torque_upper_nm=2e-4,
+        torque_initial_nm=1e-4,
+    )
     prob = problem()
     points = [np.array([1.5, 1.3]), np.array([1.5, 1.9]), np.array([1.2, 1.05])]  # 2nd invalid
     batch = prob._batch_map(lambda u: u, iter(points))

@@ -11,14 +11,11 @@ from typing import Any, cast
 
 import numpy as np
 import pytest
-from diagnosis_cases import step_case
+from diagnosis_cases import friction_problems, step_case
 from scipy.optimize import least_squares
 from scipy.optimize._numdiff import approx_derivative
 
-from nanostage.config import replace_paths
-from nanostage.diagnosis.candidates import Param
 from nanostage.diagnosis.fit import FitProblem, SecantJacobian
-from nanostage.diagnosis.manifest import load_manifest
 from nanostage.diagnosis.run import diagnose
 from nanostage.diagnosis.settings import DiagnosisSettings
 from nanostage.effects import Effects
@@ -133,27 +130,12 @@ def test_fit_with_secant_jacobian_matches_and_takes_its_errors_from_differences(
     errors come from a difference Jacobian at its optimum, not from an update."""
     import nanostage.diagnosis.fit as eng
 
-    m = step_case(tmp_path, Effects(), seed=6)
-    man = load_manifest(m)
-    exps = [e for _, e in man.experiments()][:2]
-    free = [
-        ("plant.dahl.coulomb_force_n", Param(name="f", unit="N", lower=20, upper=40, initial=24.0)),
-        (
-            "plant.motor_friction.coulomb_torque_nm",
-            Param(name="t", unit="N·m", lower=5e-5, upper=1.2e-4, initial=0.7e-4),
-        ),
-    ]
-    nominal = man.system()
-
-    def problem() -> FitProblem:
-        return FitProblem(
-            free,
-            lambda v: replace_paths(nominal, {n: x for (n, _), x in zip(free, v, strict=True)}),
-            exps,
-            2,
-            lambda s, e: s,
-        )
-
+    problem = friction_problems(
+        step_case(tmp_path, Effects(), seed=6),
+        force_initial_n=24.0,
+        torque_upper_nm=1.2e-4,
+        torque_initial_nm=0.7e-4,
+    )
     st = DiagnosisSettings(jacobian_refresh=1)
     plain = problem().fit(1, st, seed=0)
     solutions: list[Any] = []
