@@ -275,13 +275,9 @@ impl Drive {
         if let (Some(k), Actuator::DcMotor { motor, .. }) = (i_current, &params.actuator) {
             let force_per_amp = eta * motor.torque_constant_nm_per_a / r;
             let tau_e = motor.inductance_h / motor.resistance_ohm;
-            let transient = masses[0] / (tau_e * tau_e * force_per_amp);
-            t[k] = (presliding / force_per_amp).max(transient);
+            t[k] = drive_state_scale(presliding, masses[0], tau_e, force_per_amp);
         }
         if let (Some(k), Some(a)) = (i_amp, &params.amplifier) {
-            // The current's principle: the voltage that gives that presliding force, or
-            // whose error, decaying with the amplifier's τ_a = 1/(2π·bandwidth), moves mass 0
-            // by one position tolerance (a voltage error is not sustained either).
             let force_per_volt = match &params.actuator {
                 Actuator::DcMotor { motor, .. } => {
                     eta * motor.torque_constant_nm_per_a / (r * motor.resistance_ohm)
@@ -289,8 +285,7 @@ impl Drive {
                 Actuator::ForceDrive { gain_n_per_v, .. } => *gain_n_per_v,
             };
             let tau_a = 1.0 / (2.0 * std::f64::consts::PI * a.bandwidth_hz);
-            let transient = masses[0] / (tau_a * tau_a * force_per_volt);
-            t[k] = (presliding / force_per_volt).max(transient);
+            t[k] = drive_state_scale(presliding, masses[0], tau_a, force_per_volt);
         }
         t
     }
@@ -862,6 +857,21 @@ impl Drive {
         }
         (motor, table)
     }
+}
+
+/// Absolute-tolerance scale of a drive state that makes force through `force_per_unit`
+/// (the motor current, N/A; the amplifier voltage, N/V) and relaxes with time constant
+/// `tau_s`: the larger of the state that gives the presliding force of one position
+/// tolerance (`presliding_n_per_m`), and the error whose transient moves `mass_kg` by one
+/// position tolerance, `m / (τ²·force_per_unit)` (an error of such a state is not sustained).
+fn drive_state_scale(
+    presliding_n_per_m: f64,
+    mass_kg: f64,
+    tau_s: f64,
+    force_per_unit: f64,
+) -> f64 {
+    let transient = mass_kg / (tau_s * tau_s * force_per_unit);
+    (presliding_n_per_m / force_per_unit).max(transient)
 }
 
 /// The drive over one segment (inputs and modes held), as an [`OdeSystem`] of padded size N.
