@@ -23,8 +23,10 @@ differs from nanostage's own truth and candidates:
   drive compliance as a two-mass chain (rotor and screw | table), an offset force,
   asymmetric friction (direction-dependent levels on both the motor and the table laws),
   dwell-dependent breakaway in Armstrong's form (the LuGre static level rises with the time
-  at rest, counted per control interval), and position-dependent table friction from
-  random harmonics with a fine-pitch roughness term.
+  at rest, counted per control interval), position-dependent table friction from
+  random harmonics with a fine-pitch roughness term, a table friction falling with speed
+  (``lugre``: the table law replaced by a LuGre law with a Stribeck drop) and a multi-element
+  presliding (``presliding_gms``: a Maxwell-slip of elasto-plastic elements with that drop).
 
 :func:`write_case` writes a case folder like ``nanostage diagnose-benchmark``'s (a manifest,
 CSV traces with ``command_v``, a ``truth.json`` naming the hidden effect and its
@@ -114,25 +116,34 @@ HIDDEN_EFFECTS: Final[tuple[str, ...]] = (
     "asymmetric_friction",
     "dwell_static_friction",
     "position_random_friction",
+    "lugre",
+    "presliding_gms",
 )
 
 #: Hidden effects of the benchmark list not written in this family yet.
 NOT_YET_WRITTEN: Final[tuple[str, ...]] = (
     "computation_delay",
-    "presliding_gms",
-    "lugre",
     "lead_periodic_friction",
     "frictional_memory",
 )
 
-#: Which diagnosed names count as finding each hidden effect.
+#: Which diagnosed names count as finding each hidden effect. A table friction falling with
+#: speed (``lugre``: a LuGre law with a Stribeck drop) is found by any of the friction laws
+#: that carry a static excess over the Coulomb level (Stribeck, LuGre, GMS); a Maxwell-slip
+#: presliding with a Stribeck drop (``presliding_gms``) by either presliding law that has
+#: one (GMS, LuGre), as in the own family.
 ACCEPT: Final[dict[str, frozenset[str]]] = {
     "position_random_friction": frozenset({"position_random_friction", "lead_periodic_friction"}),
+    "lugre": frozenset({"lugre", "stribeck", "gms"}),
+    "presliding_gms": frozenset({"gms", "lugre"}),
 }
 
-# State indices.
+# State indices; a Maxwell-slip table (``presliding_gms``) has its further elements' deflections
+# after ``_UA``.
 _X, _V, _TH, _W, _I, _ZM, _ZT, _UA = range(8)
 _N_STATES = 8
+#: Elements of the Maxwell-slip table law of ``presliding_gms``.
+_N_SLIP_ELEMENTS = 4
 
 
 @dc.dataclass(frozen=True)
@@ -235,6 +246,24 @@ def draw_truth(hidden: str, seed: int) -> Truth:
             "amplitudes": [float(a) for a in np.concatenate([amp, rough_amp])],
             "phases_rad": [float(a) for a in rng.uniform(-math.pi, math.pi, n + m)],
         }
+    elif hidden == "lugre":
+        # The table's friction falls with speed: static level 1.3-2 times the Coulomb level,
+        # over a Stribeck velocity of 0.1-1 mm/s.
+        eff = {"static_ratio": u(1.3, 2.0), "stribeck_velocity_m_per_s": u(1e-4, 1e-3)}
+    elif hidden == "presliding_gms":
+        # Maxwell-slip elements: stiffness shares falling geometrically, slip-force shares
+        # rising, so the elements' breakaway deflections spread over one to two decades and
+        # the presliding curve bends gradually; the total stiffness 0.5-2 times the table's.
+        ratio = u(0.3, 0.6)
+        shares = np.array([ratio**i for i in range(_N_SLIP_ELEMENTS)])
+        weights = np.arange(1.0, _N_SLIP_ELEMENTS + 1.0)
+        k_total = u(0.5, 2.0) * p["table_stiffness_n_per_m"]
+        eff = {
+            "stiffnesses_n_per_m": [float(k) for k in k_total * shares / shares.sum()],
+            "weights": [float(w) for w in weights / weights.sum()],
+            "static_ratio": u(1.3, 1.8),
+            "stribeck_velocity_m_per_s": u(2e-4, 2e-3),
+        }
     return Truth(hidden=hidden, p=p, effect=eff, seed=seed)
 
 
@@ -264,6 +293,14 @@ class _Run:
         self.asym = (
             float(t.effect.get("asymmetry", 0.0)) if t.hidden == "asymmetric_friction" else 0.0
         )
+        self.n_states = _N_STATES
+        if t.hidden == "presliding_gms":
+            self.slip_k = np.asarray(t.effect["stiffnesses_n_per_m"])
+            self.slip_w = np.asarray(t.effect["weights"])
+            # Each element's damper in proportion to its stiffness (the whole: σ1 of the
+            # table's single-element law at the same total stiffness ratio).
+            self.slip_c = self.sigma1_t * self.slip_k / self.sigma0_t
+            self.n_states = _N_STATES + _N_SLIP_ELEMENTS - 1
         if t.hidden == "position_random_friction":
             self.mod_k = 2.0 * math.pi / np.asarray(t.effect["wavelengths_m"])
             self.mod_a = np.asarray(t.effect["amplitudes"])
@@ -298,9 +335,56 @@ class _Run:
         )
         return torque, dz
 
+    def stribeck_factor(self, v: float) -> float:
+        """The sliding level over the Coulomb level at speed ``v``: 1 + (r − 1)·exp(−(v/vₛ)²)
+        for a friction falling with speed (``lugre``, ``presliding_gms``), else 1."""
+        e = self.truth.effect
+        if self.truth.hidden not in ("lugre", "presliding_gms"):
+            return 1.0
+        s = math.exp(-((v / e["stribeck_velocity_m_per_s"]) ** 2))
+        return 1.0 + (e["static_ratio"] - 1.0) * s
+
+    def table_friction(self, y: FloatArray, dy: FloatArray) -> float:
+        """Table friction force; writes the friction states' rates into ``dy``."""
+        x, v = y[_X], y[_V]
+        if self.truth.hidden == "lugre":
+            f, dy[_ZT] = self.lugre_table(x, v, y[_ZT])
+            return f
+        if self.truth.hidden == "presliding_gms":
+            level = self.table_level(x, v) * self.stribeck_factor(v)
+            idx = [_ZT, *range(_N_STATES, self.n_states)]
+            total = 0.0
+            for i, k in enumerate(idx):
+                f_i, dy[k] = self.elasto_plastic_element(
+                    v, y[k], self.slip_w[i] * level, self.slip_k[i], self.slip_c[i]
+                )
+                total += f_i
+            return total
+        f, dy[_ZT] = self.elasto_plastic(x, v, y[_ZT])
+        return f
+
+    def lugre_table(self, x: float, v: float, z: float) -> tuple[float, float]:
+        """Table friction force and the bristle rate of a LuGre law (Canudas de Wit et al.
+        1995) with a Stribeck drop; the bristles are the table's presliding stiffness and
+        damping, the damping fading with speed as in the motor's law."""
+        e = self.truth.effect
+        g = self.table_level(x, v) * self.stribeck_factor(v)
+        dz = v - self.sigma0_t * abs(v) * z / g
+        s = math.exp(-((v / e["stribeck_velocity_m_per_s"]) ** 2))
+        return self.sigma0_t * z + self.sigma1_t * s * dz, dz
+
     def elasto_plastic(self, x: float, v: float, z: float) -> tuple[float, float]:
         """Table friction force and the deflection rate (Dupont's elasto-plastic law)."""
-        z_ss = self.table_level(x, v) / self.sigma0_t
+        return self.elasto_plastic_element(
+            v, z, self.table_level(x, v), self.sigma0_t, self.sigma1_t
+        )
+
+    def elasto_plastic_element(
+        self, v: float, z: float, level: float, k: float, c: float
+    ) -> tuple[float, float]:
+        """Force and deflection rate of one elasto-plastic element (Dupont et al. 2002) of
+        stiffness ``k``, damping ``c`` and sliding force ``level``."""
+        z_ss = level / k
         z_ba = self.truth.p["table_breakaway_ratio"] * z_ss
         a = 0.0
         if v * z > 0.0:
@@ -310,7 +394,7 @@ class _Run:
             elif az > z_ba:
                 a = 0.5 + 0.5 * math.sin(math.pi * (az - 0.5 * (z_ss + z_ba)) / (z_ss - z_ba))
         dz = v * (1.0 - a * abs(z) / z_ss)
-        return self.sigma0_t * z + self.sigma1_t * dz, dz
+        return k * z + c * dz, dz
 
     def link_force(self, y: FloatArray) -> float:
         """Force of the drive train on the table (two-mass chains)."""
@@ -330,7 +414,7 @@ class _Run:
     def rhs(self, u_cmd: float, y: FloatArray) -> FloatArray:
         t = self.truth
         p = t.p
-        dy = np.zeros(_N_STATES)
+        dy = np.zeros(self.n_states)
         if t.hidden == "amplifier_dynamics":
             u = y[_UA]
             dy[_UA] = (u_cmd - u) / t.effect["time_constant_s"]
@@ -342,7 +426,7 @@ class _Run:
             "inductance_h"
         ]
         tm, dy[_ZM] = self.lugre(w, y[_ZM])
-        ft, dy[_ZT] = self.elasto_plastic(y[_X], y[_V], y[_ZT])
+        ft = self.table_friction(y, dy)
         f_off = float(t.effect["force_n"]) if t.hidden == "offset_force" else 0.0
         dy[_X] = y[_V]
         if t.rigid:
@@ -358,7 +442,7 @@ class _Run:
         return dy
 
     def atol(self) -> FloatArray:
-        a = np.empty(_N_STATES)
+        a = np.full(self.n_states, 1e-13)
         a[_X], a[_V] = 1e-13, 1e-10
         a[_TH], a[_W] = 1e-13 / self.r, 1e-10 / self.r
         a[_I] = 1e-8
@@ -390,7 +474,7 @@ def _flank(truth: Truth, rng: np.random.Generator) -> float:
 
 
 def _initial_state(run: _Run, x0: float, flank: float) -> FloatArray:
-    y = np.zeros(_N_STATES)
+    y = np.zeros(run.n_states)
     y[_X] = x0
     d0 = 0.5 * run.truth.effect["width_m"] * flank if run.truth.hidden == "backlash" else 0.0
     y[_TH] = (x0 + d0) / run.r
