@@ -342,7 +342,7 @@ class _Run:
         if self.truth.hidden not in ("lugre", "presliding_gms"):
             return 1.0
         s = math.exp(-((v / e["stribeck_velocity_m_per_s"]) ** 2))
-        return 1.0 + (e["static_ratio"] - 1.0) * s
+        return 1.0 + (float(e["static_ratio"]) - 1.0) * s
 
     def table_friction(self, y: FloatArray, dy: FloatArray) -> float:
         """Table friction force; writes the friction states' rates into ``dy``."""
