@@ -218,7 +218,7 @@ def test_maxwell_slip_presliding_bends_over_its_elements_and_saturates() -> None
     assert k0 == pytest.approx(k_total, rel=1e-3)
     assert f[0] == pytest.approx(c_total * v, rel=1e-6)
     # Saturates at the static level once every element slides.
-    assert f[-1] == pytest.approx(f_static + 0.0, rel=1e-3)
+    assert f[-1] == pytest.approx(f_static, rel=1e-3)
     # Gradual: where one element of the whole stiffness would reach the level, the elements
     # together give well under it (the stiff ones slip first).
     at = np.interp(f_static / k_total, x, f)
