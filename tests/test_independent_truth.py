@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
@@ -254,16 +256,127 @@ def test_backlash_table_lags_the_motor_by_the_dead_band_on_a_reversal() -> None:
     d = out["motor_position_m"] - out["position_m"]
     k = e["contact_stiffness_n_per_m"]
     fc = t.p["table_coulomb_force_n"]
-    # Sliding both ways, the link carries the table friction: the flank contact is
-    # compressed by Fc/k on either side of the dead band.
-    assert d[n] == pytest.approx(0.5 * e["width_m"] + fc / k, rel=1e-4)
-    assert d[-1] == pytest.approx(-0.5 * e["width_m"] - fc / k, rel=1e-4)
+    # Sliding both ways, the link carries the table friction: the Hertzian flank contact,
+    # of tangent stiffness k at that load, is compressed by 1.5·Fc/k (F ∝ δ^1.5) on either
+    # side of the dead band.
+    assert d[n] == pytest.approx(0.5 * e["width_m"] + 1.5 * fc / k, rel=1e-4)
+    assert d[-1] == pytest.approx(-0.5 * e["width_m"] - 1.5 * fc / k, rel=1e-4)
     # After the reversal the motor crosses the gap while the table stays (within its
     # presliding relaxation, below a micrometre).
     xm, x = out["motor_position_m"], out["position_m"]
     crossing = np.flatnonzero(xm[n:] < xm[n] - 0.9 * e["width_m"])[0] + n
     assert np.all(x[n:crossing] > x[n] - 1e-6)
     assert x[-1] < x[n] - 100e-6
+
+
+def _contact(run: Any, depth_m: float, rate_m_per_s: float, side: float = 1.0) -> float:
+    """The link force with the motor ``depth_m`` into the flank on ``side`` (±1), closing
+    at ``rate_m_per_s`` (the table at rest at 0)."""
+    y = np.zeros(run.n_states)
+    y[it._TH] = side * (0.5 * run.truth.effect["width_m"] + depth_m) / run.r
+    y[it._W] = side * rate_m_per_s / run.r
+    return float(run.link_force(y))
+
+
+def test_backlash_contact_is_hertzian_continuous_and_only_pushes() -> None:
+    t = it.draw_truth("backlash", 6)
+    run = it._Run(t, level=1.0)
+    k, c = t.effect["contact_stiffness_n_per_m"], t.effect["contact_damping_n_s_per_m"]
+    fc = t.p["table_coulomb_force_n"]
+    for side in (1.0, -1.0):
+        # Inside the dead band nothing is transmitted; at touch-down force and stiffness
+        # start from zero, whatever the closing rate (no jump for the integrator).
+        assert _contact(run, -1e-9, 1e-3, side) == 0.0
+        assert abs(_contact(run, 1e-15, 1e-3, side)) < 1e-12 * fc
+        # At the table's sliding load the tangent stiffness and damping are the drawn ones.
+        ref = 1.5 * fc / k
+        assert side * _contact(run, ref, 0.0, side) == pytest.approx(fc, rel=1e-12)
+        h = 1e-6 * ref
+        slope = (_contact(run, ref + h, 0.0, side) - _contact(run, ref - h, 0.0, side)) / (2 * h)
+        assert side * slope == pytest.approx(k, rel=1e-6)
+        damp = (_contact(run, ref, 1e-4, side) - _contact(run, ref, -1e-4, side)) / 2e-4
+        assert side * damp == pytest.approx(c, rel=1e-9)
+        # Grows as depth^1.5.
+        ratio = _contact(run, 8 * ref, 0.0, side) / _contact(run, 2 * ref, 0.0, side)
+        assert ratio == pytest.approx(8.0, rel=1e-12)
+        # Separating fast, the damper cannot pull: the force stays on the pushing side.
+        assert _contact(run, ref, -10.0 * fc / c, side) == 0.0
+
+
+@given(
+    amp=st.floats(0.01, 3.0),
+    freq=st.floats(1.0, 2000.0),
+    seed=st.integers(0, 50),
+)
+@settings(max_examples=40, deadline=None)
+def test_backlash_contact_dissipates_over_a_closed_indentation(
+    amp: float, freq: float, seed: int
+) -> None:
+    # δ(t) = A·ref·(1 − cos ωt)/2 over one period: the Hertzian part gives back what it
+    # took, the Hunt-Crossley damping only takes (∮ F dδ ≥ 0, and > 0 when moving).
+    t = it.draw_truth("backlash", seed)
+    run = it._Run(t, level=1.0)
+    ref = 1.5 * t.p["table_coulomb_force_n"] / t.effect["contact_stiffness_n_per_m"]
+    w = 2.0 * math.pi * freq
+    tt = np.linspace(0.0, 1.0 / freq, 4001)
+    depth = amp * ref * 0.5 * (1.0 - np.cos(w * tt))
+    rate = amp * ref * 0.5 * w * np.sin(w * tt)
+    f = np.array([_contact(run, d, r) for d, r in zip(depth, rate, strict=True)])
+    work = float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(depth)))
+    elastic = float(np.max(f)) * amp * ref
+    assert work > -1e-6 * elastic
+
+
+def test_backlash_dwell_that_once_stalled_integrates_at_a_modest_cost() -> None:
+    # A 1.5 s dwell of the design's micro-step experiment, the motor resting at a flank's
+    # edge: with a contact force that jumped at touch-down, and the rotor-free amplifier
+    # state carried, scipy's Radau stalled at its 456th interval (its finite-difference
+    # step on the unused state overflowed). Now each interval takes tens of evaluations.
+    t = it.draw_truth("backlash", 1480001)
+    e = it.experiment_design()[5]
+    assert e.name == "exp05_micro"
+    calls = 0
+    orig = it._Run.rhs
+
+    def counted(self: Any, u: float, s: FloatArray) -> FloatArray:
+        nonlocal calls
+        calls += 1
+        return orig(self, u, s)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(it._Run, "rhs", counted)
+        out = it.simulate_closed_loop(t, e.reference_m[:600], e.gains, 1480001 * 1000 + 5)
+    assert calls < 600 * 150
+    assert np.all(np.isfinite(out["true_position_m"]))
+
+
+def test_a_stalled_integration_is_reported_not_hung(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(it, "MAX_RHS_PER_INTERVAL", 5)
+    t = it.draw_truth("offset_force", 3)
+    design = _short_design(1)
+    with pytest.raises(it.IntegrationStalled, match=r"'offset_force', case seed 3, experiment 0"):
+        it._closed_loop_job((t, design[0].reference_m, design[0].gains, 3000, False, False))
+    run = it._Run(t, level=1.0)
+    with pytest.raises(it.IntegrationStalled, match=r"over 5 right-hand-side evaluations"):
+        run.advance(it._initial_state(run, 1e-3, 0.0), 1.0, 1e-3)
+
+
+def test_rigid_rotor_follows_the_table() -> None:
+    # Rigid, the rotor's angle and speed are not integrated: they follow the table's.
+    t = it.draw_truth("none", 5)
+    run = it._Run(t, level=1.0)
+    assert it._UA not in run.active_states() and it._TH not in run.active_states()
+    y0 = it._initial_state(run, 1e-3, 0.0)
+    y = y0
+    for _ in range(30):
+        y = run.advance(y, 2.0, 1e-3)
+    assert y[it._X] > y0[it._X] + 1e-6
+    assert y[it._TH] == pytest.approx(y0[it._TH] + (y[it._X] - y0[it._X]) / run.r, rel=1e-14)
+    assert y[it._W] == y[it._V] / run.r
+    lag = it._Run(it.draw_truth("amplifier_dynamics", 5), level=1.0)
+    chain = it._Run(it.draw_truth("drive_compliance", 5), level=1.0)
+    assert it._UA in lag.active_states()
+    assert {it._TH, it._W} <= set(chain.active_states().tolist())
 
 
 def test_hidden_effects_drawn_and_named() -> None:

@@ -18,10 +18,11 @@ differs from nanostage's own truth and candidates:
 * **Nominal parameters** drawn off the seed preset (friction levels ±30 %, presliding
   stiffness ±30 %, table mass ±20 %, motor constants and inertia ±10–20 %) and a per-run
   friction level factor (lognormal), in every case, "none" included.
-* **Hidden effects** from their physics (:data:`HIDDEN_EFFECTS`): backlash as a dead-band
-  spring-damper contact that can only push, amplifier dynamics as a first-order voltage lag,
-  drive compliance as a two-mass chain (rotor and screw | table), an offset force,
-  asymmetric friction (direction-dependent levels on both the motor and the table laws),
+* **Hidden effects** from their physics (:data:`HIDDEN_EFFECTS`): backlash as a dead band
+  closed by a Hertzian contact with Hunt-Crossley damping that can only push, amplifier
+  dynamics as a first-order voltage lag, drive compliance as a two-mass chain (rotor and
+  screw | table), an offset force, asymmetric friction (direction-dependent levels on both
+  the motor and the table laws),
   dwell-dependent breakaway in Armstrong's form (the LuGre static level rises with the time
   at rest, counted per control interval), position-dependent table friction from
   random harmonics with a fine-pitch roughness term, a table friction falling with speed
@@ -58,10 +59,12 @@ from .case_manifest import UNCERTAIN_MOTOR_AND_INERTIA, case_manifest_head
 
 __all__ = [
     "HIDDEN_EFFECTS",
+    "MAX_RHS_PER_INTERVAL",
     "NOT_YET_WRITTEN",
     "SEED",
     "DesignedExperiment",
     "FixedPointPid",
+    "IntegrationStalled",
     "Truth",
     "draw_truth",
     "experiment_design",
@@ -137,6 +140,15 @@ ACCEPT: Final[dict[str, frozenset[str]]] = {
     "lugre": frozenset({"lugre", "stribeck", "gms"}),
     "presliding_gms": frozenset({"gms", "lugre"}),
 }
+
+#: Right-hand-side evaluations allowed in one control interval before the integration is
+#: declared stalled (a smooth interval takes tens to hundreds).
+MAX_RHS_PER_INTERVAL: Final = 50_000
+
+
+class IntegrationStalled(RuntimeError):
+    """The truth's integrator made no headway in one control interval."""
+
 
 # State indices; a Maxwell-slip table (``presliding_gms``) has its further elements' deflections
 # after ``_UA``.
@@ -301,6 +313,12 @@ class _Run:
             # table's single-element law at the same total stiffness ratio).
             self.slip_c = self.sigma1_t * self.slip_k / self.sigma0_t
             self.n_states = _N_STATES + _N_SLIP_ELEMENTS - 1
+        if t.hidden == "backlash":
+            # Depth at which the Hertzian contact carries the table's sliding load with the
+            # drawn tangent stiffness (dF/dδ = 1.5 F/δ).
+            self.contact_ref_depth_m = (
+                1.5 * p["table_coulomb_force_n"] / t.effect["contact_stiffness_n_per_m"]
+            )
         if t.hidden == "position_random_friction":
             self.mod_k = 2.0 * math.pi / np.asarray(t.effect["wavelengths_m"])
             self.mod_a = np.asarray(t.effect["amplitudes"])
@@ -406,10 +424,17 @@ class _Run:
         half = 0.5 * e["width_m"]
         if abs(d) <= half:
             return 0.0
-        pen = d - math.copysign(half, d)
-        f = e["contact_stiffness_n_per_m"] * pen + e["contact_damping_n_s_per_m"] * dd
-        # A contact can only push.
-        return float(f) if f * pen > 0.0 else 0.0
+        # Hertzian flank contact (balls on the raceway: force ∝ depth^1.5) with Hunt-Crossley
+        # damping (∝ depth^1.5 · rate), scaled so that at the table's sliding load the
+        # contact's tangent stiffness and damping are the drawn ones. Force and stiffness
+        # are zero at touch-down (no jump for the integrator), and the contact only pushes.
+        s = math.copysign(1.0, d)
+        depth = abs(d) - half
+        ref = self.contact_ref_depth_m
+        shape = (depth / ref) ** 1.5
+        f_ref = self.truth.p["table_coulomb_force_n"]
+        push = f_ref * shape + e["contact_damping_n_s_per_m"] * shape * s * dd
+        return s * push if push > 0.0 else 0.0
 
     def rhs(self, u_cmd: float, y: FloatArray) -> FloatArray:
         t = self.truth
@@ -451,19 +476,54 @@ class _Run:
         a[_UA] = 1e-8
         return a
 
+    def active_states(self) -> NDArray[np.intp]:
+        """The states the integrator carries: the amplifier's only with a voltage lag, the
+        rotor's angle and speed only in a two-mass chain (rigid, they follow the table's).
+        A state the right-hand side never reads would leave its Jacobian column zero, whose
+        finite-difference step scipy then grows without bound."""
+        drop = set() if self.truth.hidden == "amplifier_dynamics" else {_UA}
+        if self.truth.rigid:
+            drop |= {_TH, _W}
+        return np.array([i for i in range(self.n_states) if i not in drop], dtype=np.intp)
+
     def advance(self, y: FloatArray, u_cmd: float, dt: float) -> FloatArray:
+        """The state after ``dt`` s at the voltage ``u_cmd`` (Radau, rtol 1e-9). Raises
+        :class:`IntegrationStalled` after :data:`MAX_RHS_PER_INTERVAL` evaluations."""
+        act = self.active_states()
+        full = np.array(y, dtype=np.float64)
+        calls = 0
+
+        def f(_t: float, s: FloatArray) -> FloatArray:
+            nonlocal calls
+            calls += 1
+            if calls > MAX_RHS_PER_INTERVAL:
+                raise IntegrationStalled(
+                    f"the truth's integration stalled: over {MAX_RHS_PER_INTERVAL} "
+                    f"right-hand-side evaluations in one {dt:.3g} s interval at "
+                    f"table position {y[_X]:.9g} m, speed {y[_V]:.3g} m/s, "
+                    f"voltage {u_cmd:.4g} V"
+                )
+            z = full.copy()
+            z[act] = s
+            out: FloatArray = self.rhs(u_cmd, z)[act]
+            return out
+
         sol = solve_ivp(
-            lambda _t, s: self.rhs(u_cmd, s),
+            f,
             (0.0, dt),
-            y,
+            full[act],
             method="Radau",
             rtol=1e-9,
-            atol=self.atol(),
+            atol=self.atol()[act],
             first_step=min(dt, 1e-6),
         )
         if not sol.success:
             raise RuntimeError(f"integration failed: {sol.message}")
-        out: FloatArray = np.asarray(sol.y[:, -1], dtype=np.float64)
+        out = full.copy()
+        out[act] = sol.y[:, -1]
+        if self.truth.rigid:
+            out[_TH] = y[_TH] + (out[_X] - y[_X]) / self.r
+            out[_W] = out[_V] / self.r
         return out
 
 
@@ -840,14 +900,19 @@ _Job = tuple[Truth, FloatArray, tuple[float, float, float], int, bool, bool]
 
 def _closed_loop_job(job: _Job) -> dict[str, FloatArray]:
     truth, reference_m, gains, seed, deterministic, without_hidden = job
-    return simulate_closed_loop(
-        truth,
-        reference_m,
-        gains,
-        seed,
-        deterministic=deterministic,
-        without_hidden=without_hidden,
-    )
+    try:
+        return simulate_closed_loop(
+            truth,
+            reference_m,
+            gains,
+            seed,
+            deterministic=deterministic,
+            without_hidden=without_hidden,
+        )
+    except IntegrationStalled as e:
+        raise IntegrationStalled(
+            f"hidden {truth.hidden!r}, case seed {truth.seed}, experiment {seed % 1000}: {e}"
+        ) from e
 
 
 def _simulate_jobs(jobs: Sequence[_Job], workers: int) -> list[dict[str, FloatArray]]:
