@@ -97,6 +97,7 @@ from nanostage.diagnosis.run import (
     readings_gap,
     selecting_results,
     ties_of_selected,
+    widened_gap_warnings,
 )
 from nanostage.diagnosis.select import (
     CandidateResult,
@@ -2528,6 +2529,14 @@ def test_parameters_at_their_bounds_are_found_and_named() -> None:
     assert "plant.k = 1.05e+06 at its lower bound 1e+06" in warns[0]
     assert bound_warnings([], []) == []
     assert "still at their bounds" in bound_warnings([], rows[:1])[0]
+
+
+def test_a_selection_that_widens_the_validation_gap_is_warned_about() -> None:
+    (w,) = widened_gap_warnings(168.1e-9, 357.5e-9, ["lugre"])
+    assert "(lugre)" in w and "357.5 nm against 168.1 nm" in w and "shrink -113%" in w
+    assert widened_gap_warnings(168.1e-9, 100e-9, ["lugre"]) == []
+    assert widened_gap_warnings(168.1e-9, 168.1e-9, ["lugre"]) == []
+    assert widened_gap_warnings(168.1e-9, 357.5e-9, []) == []
 
 
 def test_cross_judge_split_holds_out_every_experiment_once() -> None:

@@ -714,9 +714,17 @@ def diagnose(
         "nominal": at_bounds(out["nominal"], free),
         "selected_model": at_bounds(out["final"], free) if out["selected"] else [],
     }
-    report["warnings"] = list(setup.warnings.values()) + bound_warnings(
-        report["calibration_at_bounds"]["nominal"],
-        report["calibration_at_bounds"]["selected_model"],
+    report["warnings"] = (
+        list(setup.warnings.values())
+        + bound_warnings(
+            report["calibration_at_bounds"]["nominal"],
+            report["calibration_at_bounds"]["selected_model"],
+        )
+        + widened_gap_warnings(
+            float(report["gap_before"]["total_rms_m"]),
+            float(report["gap_after"]["total_rms_m"]),
+            report["selected"],
+        )
     )
     written = None
     if out_dir is not None:
@@ -1259,6 +1267,25 @@ def bound_warnings(
             + "): the selected model may be compensating for a further effect"
         )
     return out
+
+
+def widened_gap_warnings(
+    before_rms_m: float, after_rms_m: float, selected: Sequence[str]
+) -> list[str]:
+    """The report's warning when the selected model's pooled validation gap is larger than
+    the nominal model's: the selection then rests on the judging over every experiment (the
+    training ones too) or on marks the pooled validation positions do not carry, and its
+    shrink is not confirmed on the data the fit never saw."""
+    if not selected or not after_rms_m > before_rms_m:
+        return []
+    return [
+        f"the selected model ({', '.join(selected)}) leaves a larger validation gap than the "
+        f"nominal model ({after_rms_m * 1e9:.1f} nm against {before_rms_m * 1e9:.1f} nm RMS, "
+        f"shrink {1.0 - after_rms_m / before_rms_m:.0%}): it was selected on its judging over "
+        "every experiment, which the validation positions alone do not confirm; read the "
+        "selection as a hypothesis and test it on further validation experiments of the "
+        "kinds it improved (see *Judged on every experiment*)"
+    ]
 
 
 def _free_parameters(fit: Fit, nominal: Fit) -> dict[str, dict[str, float | None]]:
