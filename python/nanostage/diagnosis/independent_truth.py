@@ -323,6 +323,8 @@ class _Run:
             self.mod_k = 2.0 * math.pi / np.asarray(t.effect["wavelengths_m"])
             self.mod_a = np.asarray(t.effect["amplitudes"])
             self.mod_ph = np.asarray(t.effect["phases_rad"])
+        self.active = self.active_states()
+        self.active_atol = self.atol()[self.active]
 
     def motor_levels(self, w: float) -> tuple[float, float]:
         """(static, Coulomb) torque of the LuGre law for the direction of ``w``."""
@@ -456,9 +458,8 @@ class _Run:
         dy[_X] = y[_V]
         if t.rigid:
             acc = (self.eta / self.r * (kt * y[_I] - tm) - ft - f_off) / self.m_eq
+            # The rotor's angle and speed follow the table's (not integrated: advance).
             dy[_V] = acc
-            dy[_TH] = y[_V] / self.r
-            dy[_W] = acc / self.r
         else:
             fl = self.link_force(y)
             dy[_V] = (fl - ft - f_off) / p["mass_kg"]
@@ -489,7 +490,7 @@ class _Run:
     def advance(self, y: FloatArray, u_cmd: float, dt: float) -> FloatArray:
         """The state after ``dt`` s at the voltage ``u_cmd`` (Radau, rtol 1e-9). Raises
         :class:`IntegrationStalled` after :data:`MAX_RHS_PER_INTERVAL` evaluations."""
-        act = self.active_states()
+        act = self.active
         full = np.array(y, dtype=np.float64)
         calls = 0
 
@@ -514,7 +515,7 @@ class _Run:
             full[act],
             method="Radau",
             rtol=1e-9,
-            atol=self.atol()[act],
+            atol=self.active_atol,
             first_step=min(dt, 1e-6),
         )
         if not sol.success:

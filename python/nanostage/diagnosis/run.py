@@ -1273,18 +1273,19 @@ def widened_gap_warnings(
     before_rms_m: float, after_rms_m: float, selected: Sequence[str]
 ) -> list[str]:
     """The report's warning when the selected model's pooled validation gap is larger than
-    the nominal model's: the selection then rests on the judging over every experiment (the
-    training ones too) or on marks the pooled validation positions do not carry, and its
-    shrink is not confirmed on the data the fit never saw."""
+    the nominal model's: the selection then rests on the per-experiment (geometric) gaps or
+    on the judging over every experiment (the training ones too), and its shrink is not
+    confirmed on the pooled data the fit never saw."""
     if not selected or not after_rms_m > before_rms_m:
         return []
     return [
         f"the selected model ({', '.join(selected)}) leaves a larger validation gap than the "
         f"nominal model ({after_rms_m * 1e9:.1f} nm against {before_rms_m * 1e9:.1f} nm RMS, "
-        f"shrink {1.0 - after_rms_m / before_rms_m:.0%}): it was selected on its judging over "
-        "every experiment, which the validation positions alone do not confirm; read the "
-        "selection as a hypothesis and test it on further validation experiments of the "
-        "kinds it improved (see *Judged on every experiment*)"
+        f"shrink {1.0 - after_rms_m / before_rms_m:.0%}): the rules that selected it (the "
+        "geometric gap per validation experiment, or the judging over every experiment) are "
+        "not confirmed by the pooled validation gap; read the selection as a hypothesis and "
+        "test it on further validation experiments of the kinds it improved (see "
+        "*Candidates* and *Judged on every experiment*)"
     ]
 
 
