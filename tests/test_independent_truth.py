@@ -522,3 +522,27 @@ def test_oracle_readings_are_the_deterministic_model_of_the_written_case() -> No
         it.oracle_readings("offset_force", 4, ["nope"], design=design)
     with pytest.raises(ValueError, match="workers"):
         it.oracle_readings("offset_force", 4, names, design=design, workers=0)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_pipelined_loop_moves_whole_cycles_late(seed: int) -> None:
+    """A pipelined controller: the command the loop computes is the same sample by sample
+    until the axis has moved, and the axis starts to move ``pipeline_cycles`` samples later
+    than without the pipeline (the extra latency is under a quarter of a cycle)."""
+    t = it.draw_truth("computation_delay", seed)
+    cycles = int(t.effect["pipeline_cycles"])
+    assert cycles in (1, 2)
+    assert 0.0 <= t.effect["extra_latency_s"] <= 0.25 * t.p["sample_period_s"]
+    ref = np.concatenate([np.full(5, 2e-3), np.full(60, 2.1e-3)])
+    gains = it.TABLE1_GAINS[100e-6]
+    late = it.simulate_closed_loop(t, ref, gains, 9, deterministic=True)
+    now = it.simulate_closed_loop(t, ref, gains, 9, deterministic=True, without_hidden=True)
+
+    def first_move(run: dict[str, np.ndarray]) -> int:
+        x = run["true_position_m"]
+        return int(np.argmax(np.abs(x - x[0]) > 1e-9))
+
+    assert first_move(late) - first_move(now) == cycles
+    # Up to the first reading that differs, the loop computes the same commands.
+    k = first_move(now)
+    assert np.array_equal(late["command_v"][: k + 1], now["command_v"][: k + 1])

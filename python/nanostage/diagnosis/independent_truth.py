@@ -27,7 +27,9 @@ differs from nanostage's own truth and candidates:
   at rest, counted per control interval), position-dependent table friction from
   random harmonics with a fine-pitch roughness term, a table friction falling with speed
   (``lugre``: the table law replaced by a LuGre law with a Stribeck drop) and a multi-element
-  presliding (``presliding_gms``: a Maxwell-slip of elasto-plastic elements with that drop).
+  presliding (``presliding_gms``: a Maxwell-slip of elasto-plastic elements with that drop),
+  and a pipelined controller (``computation_delay``: the output reaches the DAC one or two
+  whole cycles late, after a longer computation latency).
 
 :func:`write_case` writes a case folder like ``nanostage diagnose-benchmark``'s (a manifest,
 CSV traces with ``command_v``, a ``truth.json`` naming the hidden effect and its
@@ -44,6 +46,7 @@ from __future__ import annotations
 import dataclasses as dc
 import math
 import multiprocessing
+from collections import deque
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from fractions import Fraction
@@ -121,11 +124,11 @@ HIDDEN_EFFECTS: Final[tuple[str, ...]] = (
     "position_random_friction",
     "lugre",
     "presliding_gms",
+    "computation_delay",
 )
 
 #: Hidden effects of the benchmark list not written in this family yet.
 NOT_YET_WRITTEN: Final[tuple[str, ...]] = (
-    "computation_delay",
     "lead_periodic_friction",
     "frictional_memory",
 )
@@ -275,6 +278,14 @@ def draw_truth(hidden: str, seed: int) -> Truth:
             "weights": [float(w) for w in weights / weights.sum()],
             "static_ratio": u(1.3, 1.8),
             "stribeck_velocity_m_per_s": u(2e-4, 2e-3),
+        }
+    elif hidden == "computation_delay":
+        # A pipelined loop: the output computed at a sample reaches the DAC one or two
+        # whole control cycles later, and after a longer computation latency (up to a
+        # quarter of a cycle more than the preset's 3.25 µs).
+        eff = {
+            "pipeline_cycles": int(rng.integers(1, 3)),
+            "extra_latency_s": u(0.0, 0.25) * p["sample_period_s"],
         }
     return Truth(hidden=hidden, p=p, effect=eff, seed=seed)
 
@@ -695,6 +706,11 @@ def simulate_closed_loop(
     pos, cmd, xt, xm = (np.empty(n) for _ in range(4))
     u_held = 0.0
     vmax = p["amplifier_limit_v"]
+    # A pipelined loop (``computation_delay``): outputs wait in a queue of whole cycles.
+    pipeline: deque[float] = deque()
+    if plant.hidden == "computation_delay":
+        pipeline.extend([0.0] * int(plant.effect["pipeline_cycles"]))
+        lat += float(plant.effect["extra_latency_s"])
     for k in range(n):
         counts = math.floor((y[_X] + (rng.normal(0.0, noise_m) if noise_m else 0.0)) / q)
         r_counts = round(float(reference_m[k]) / q)
@@ -702,6 +718,9 @@ def simulate_closed_loop(
         pos[k], cmd[k] = counts * q, out / (1 << _frac(pid.f["output"])) * OUTPUT_UNIT_V
         xt[k], xm[k] = y[_X], run.r * y[_TH]
         u_new = min(max(code * DAC_LSB_V, -vmax), vmax)
+        if pipeline:
+            pipeline.append(u_new)
+            u_new = pipeline.popleft()
         th0 = y[_TH]
         if u_new == u_held:
             y = run.advance(y, u_held, ts)
