@@ -22,7 +22,7 @@ from nanostage.diagnosis.benchmark import TRUTH_FAMILIES, run_benchmark
 from nanostage.diagnosis.candidates import Param
 from nanostage.diagnosis.case_manifest import UNCERTAIN_MOTOR_AND_INERTIA, case_manifest_head
 from nanostage.diagnosis.fit import FitProblem
-from nanostage.diagnosis.loop import _verdict, command_weights
+from nanostage.diagnosis.loop import _verdict, command_weights, speed_mark_support
 from nanostage.diagnosis.objective import (
     apply_gap_plan,
     channel_units,
@@ -40,6 +40,7 @@ from nanostage.diagnosis.report import markdown_report
 from nanostage.diagnosis.run import _setup, experiment_advice, lone_largest, unexplained_gap
 from nanostage.diagnosis.select import CandidateResult
 from nanostage.diagnosis.settings import DiagnosisSettings
+from nanostage.diagnosis.signatures import Feature
 from nanostage.diagnosis.traces import write_trace_csv
 from nanostage.experiment import Experiment
 
@@ -162,7 +163,9 @@ def test_command_weights_and_the_stacked_gap() -> None:
     assert max(float(np.max(np.abs(r))) for r in stacked.residuals(s, exps)) < 1e-6
 
 
-def _ns_ctx(floor: float, st: DiagnosisSettings) -> Any:
+def _ns_ctx(
+    floor: float, st: DiagnosisSettings, mark_supported: dict[str, float] | None = None
+) -> Any:
     return SimpleNamespace(
         st=st,
         floor=floor,
@@ -171,6 +174,7 @@ def _ns_ctx(floor: float, st: DiagnosisSettings) -> Any:
         weights={},
         family=1,
         p_level=st.p_value,
+        mark_supported=mark_supported or {},
     )
 
 
@@ -181,6 +185,7 @@ def _judge_four(
     after: np.ndarray,
     floor: float,
     settings: DiagnosisSettings,
+    mark_supported: dict[str, float] | None = None,
 ) -> CandidateResult:
     """``_verdict`` of a candidate on four validation experiments (mean squares ``after``
     against ``base``, each experiment its own unit), without a command."""
@@ -194,7 +199,7 @@ def _judge_four(
         k_params,
         base,
         [None] * 4,
-        _ns_ctx(floor, settings),
+        _ns_ctx(floor, settings, mark_supported),
         0,
         after,
         base,
@@ -256,6 +261,63 @@ def test_a_friction_law_must_explain_most_of_the_gap() -> None:
     assert any("explains 40% of the gap's mean square" in x for x in partial.reasons)
     # Off: the friction law is judged as any other candidate.
     assert judge("lugre", 0.6, dc.replace(st, friction_model_share=0.0)).significant
+    # A law whose own fit puts right the ramp marks the model before misses is not held
+    # back by the share (the report says so); the other rules still hold.
+    marked = _judge_four("lugre", 3, base, base * 0.6, 1e-9, st, {"lugre": 0.8})
+    assert marked.significant, marked.reasons
+    assert "80% of the χ² of the ramp marks" in marked.reasons[-1]
+    assert not _judge_four("gms", 3, base, base * 0.6, 1e-9, st, {"lugre": 0.8}).significant
+    worse = _judge_four("lugre", 3, base, base * 1.1, 1e-9, st, {"lugre": 0.8})
+    assert not worse.significant and "complexity penalty" in " ".join(worse.reasons)
+
+
+def test_speed_mark_support_names_the_laws_that_put_the_ramp_marks_right() -> None:
+    """``speed_mark_support``: the share of the χ² of the speed marks (ramp level and
+    slope) the model before misses by more than 3 standard errors that each friction law's
+    own fit removes; only laws at or above the share, and nothing when no speed mark is
+    missed."""
+    measured = {
+        "ramp_level_v": Feature(0.84, 0.01),
+        "ramp_slope_v_s_per_m": Feature(150.0, 20.0),
+        "hold_amplitude_m": Feature(1e-6, 1e-7),
+    }
+    sims = {
+        "before": {
+            "ramp_level_v": Feature(0.65, 0.01),  # z = 0.19 / 0.01414 = 13.4
+            "ramp_slope_v_s_per_m": Feature(150.0, 20.0),  # not missed: left out
+            "hold_amplitude_m": Feature(2e-6, 1e-7),  # missed, but no speed mark
+        },
+        "good": {"ramp_level_v": Feature(0.82, 0.01), "ramp_slope_v_s_per_m": Feature(0, 1)},
+        "half": {"ramp_level_v": Feature(0.72, 0.01)},
+        "quiet": {"ramp_level_v": Feature(0.65, 0.01), "hold_amplitude_m": Feature(1e-6, 1e-7)},
+    }
+
+    def simulated(system: str) -> dict[str, Feature]:
+        if system == "broken":
+            raise RuntimeError("simulation failed")
+        return sims[system]
+
+    judge = cast(Any, SimpleNamespace(measured=measured, simulated=simulated))
+
+    def res(name: str, system: str) -> CandidateResult:
+        return cast(
+            CandidateResult, SimpleNamespace(effect=name, fit=SimpleNamespace(system=system))
+        )
+
+    got = speed_mark_support(
+        judge,
+        cast(Any, "before"),
+        [res("lugre", "good"), res("gms", "half"), res("stribeck", "broken"), res("dahl", "quiet")],
+        0.5,
+    )
+    # good: (0.02/0.01414)² = 2 of (0.19/0.01414)² = 180.5 left; half: 72.0 of 180.5 left.
+    assert set(got) == {"lugre", "gms"}
+    assert got["lugre"] == pytest.approx(1.0 - 4.0 / 361.0, rel=1e-9)
+    assert got["gms"] == pytest.approx(1.0 - 144.0 / 361.0, rel=1e-9)
+    assert set(speed_mark_support(judge, cast(Any, "before"), [res("gms", "half")], 0.7)) == set()
+    # Nothing missed among the speed marks: no support, whatever the laws do.
+    sims["before"]["ramp_level_v"] = Feature(0.83, 0.01)
+    assert speed_mark_support(judge, cast(Any, "before"), [res("lugre", "good")], 0.5) == {}
 
 
 def test_unexplained_gap_names_the_best_partial_explanations() -> None:
@@ -604,3 +666,13 @@ def test_advice_says_when_one_validation_experiment_holds_the_gap() -> None:
     assert judged_alone({"exp02_step": 1.0}) == []
     assert judged_alone({"exp02_step": 0.0, "exp08_ramp": 0.0}) == []
     assert judged_alone(None) == []
+
+
+def test_report_names_the_laws_the_ramp_marks_support() -> None:
+    from nanostage.diagnosis.report import _mark_support_lines
+
+    lines = _mark_support_lines([{"round": 1, "laws": {"lugre": 0.73, "gms": 0.5}}, {}])
+    assert len(lines) == 1
+    assert lines[0].startswith("Round 1: the model before misses the ramp marks")
+    assert "`lugre` 73%, `gms` 50%" in lines[0]
+    assert _mark_support_lines(None) == [] and _mark_support_lines([{"laws": {}}]) == []

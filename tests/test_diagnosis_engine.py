@@ -1411,6 +1411,8 @@ def test_reused_simulations_leave_the_report_unchanged(tmp_path: Path) -> None:
     for share in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match=r"friction_model_share = .*must be in \[0, 1\]"):
             diagnose(m, None, settings=dc.replace(st, friction_model_share=share), progress=False)
+        with pytest.raises(ValueError, match=r"speed_mark_share = .*must be in \[0, 1\]"):
+            diagnose(m, None, settings=dc.replace(st, speed_mark_share=share), progress=False)
 
 
 def test_phase_clock_charges_each_lap_to_its_phase_and_round() -> None:

@@ -626,6 +626,23 @@ def _extra_refit_lines(refits: Any) -> list[str]:
     return out
 
 
+def _mark_support_lines(support: Any) -> list[str]:
+    """One line per round whose friction laws put right the ramp marks the model before
+    misses (report ``speed_mark_support``)."""
+    out: list[str] = []
+    for d in support if isinstance(support, list | tuple) else []:
+        laws = d.get("laws") if isinstance(d, Mapping) else None
+        if not isinstance(laws, Mapping) or not laws:
+            continue
+        names = ", ".join(f"`{_md_escape(str(n))}` {float(v):.0%}" for n, v in laws.items())
+        out.append(
+            f"Round {d.get('round')}: the model before misses the ramp marks of the "
+            f"friction's speed dependence, and these friction laws' fits remove most of their "
+            f"χ² ({names}): the friction-law share rule does not hold them back.\n"
+        )
+    return out
+
+
 def _tie_entry(report: Mapping[str, Any], effect: str) -> Mapping[str, Any] | None:
     """The ``tie_signatures`` entry of the round that selected ``effect``, or None."""
     sel = report.get("selected") or []
@@ -959,6 +976,7 @@ def markdown_report(
             )
             out.append(_candidates_table(cands))
             out.extend(_extra_refit_lines(report.get("extra_refits")))
+            out.extend(_mark_support_lines(report.get("speed_mark_support")))
         else:
             out.append(_records_table(cands) if cands else "No candidates.\n")
     rounds = report.get("forward_selection")
@@ -1074,6 +1092,7 @@ def markdown_report(
         "tie_break",
         "tie_signatures",
         "extra_refits",
+        "speed_mark_support",
         "cross_judged",
         "crossfit",
         "evidence",

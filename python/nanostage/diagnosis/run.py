@@ -1068,6 +1068,9 @@ def assemble_report(
         ],
         # Per round whose lag family was refitted beyond the usual refits: why.
         "extra_refits": [dict(d) for d in out.get("extra_refits") or []],
+        # Per round whose friction laws put right the ramp marks the model before misses:
+        # each such law and the share of those marks' χ² it removes.
+        "speed_mark_support": [dict(d) for d in out.get("speed_mark_support") or []],
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": single_best.effect if single_best else None,
