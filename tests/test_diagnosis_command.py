@@ -315,6 +315,9 @@ def test_speed_mark_support_names_the_laws_that_put_the_ramp_marks_right() -> No
     assert got["lugre"] == pytest.approx(1.0 - 4.0 / 361.0, rel=1e-9)
     assert got["gms"] == pytest.approx(1.0 - 144.0 / 361.0, rel=1e-9)
     assert set(speed_mark_support(judge, cast(Any, "before"), [res("gms", "half")], 0.7)) == set()
+    # Traces without ramp commands: nothing to judge, nothing simulated.
+    bare = cast(Any, SimpleNamespace(measured={"hold_amplitude_m": Feature(1e-6, 1e-7)}))
+    assert speed_mark_support(bare, cast(Any, "before"), [res("lugre", "good")], 0.5) == {}
     # Nothing missed among the speed marks: no support, whatever the laws do.
     sims["before"]["ramp_level_v"] = Feature(0.83, 0.01)
     assert speed_mark_support(judge, cast(Any, "before"), [res("lugre", "good")], 0.5) == {}

@@ -959,8 +959,8 @@ def speed_mark_shares(
     """The share of the χ² of the :data:`SPEED_MARKS` the model ``before`` misses by more
     than three standard errors that each of ``systems`` removes (1: all of it; negative:
     it misses them further; −inf where its simulation fails); None when ``before`` misses
-    none of them or the traces have none."""
-    if not judge.measured:
+    none of them or the traces have none (then nothing is simulated)."""
+    if not any(m in judge.measured for m in SPEED_MARKS):
         return None
     try:
         base = judge.simulated(before)
