@@ -18,6 +18,7 @@ from diagnosis_cases import simulated_experiment
 from nanostage import presets
 from nanostage._core import ConfigError
 from nanostage.config import get_path, replace_paths
+from nanostage.diagnosis import independent_truth
 from nanostage.diagnosis.benchmark import TRUTH_FAMILIES, run_benchmark
 from nanostage.diagnosis.candidates import Param
 from nanostage.diagnosis.case_manifest import UNCERTAIN_MOTOR_AND_INERTIA, case_manifest_head
@@ -436,9 +437,11 @@ def test_benchmark_checks_its_truth_family_before_any_work(tmp_path: Path) -> No
     assert TRUTH_FAMILIES == ("own", "independent")
     with pytest.raises(ConfigError, match="truth = 'mujoco'"):
         run_benchmark(tmp_path / "x", truth="mujoco")
-    # A hidden effect the independent family does not draw.
+    # A hidden effect the independent family does not draw (checked first: were it drawn,
+    # the call below would run a whole benchmark).
+    assert "frictional_memory" not in independent_truth.HIDDEN_EFFECTS
     with pytest.raises(ConfigError, match="truth family 'independent'"):
-        run_benchmark(tmp_path / "x", truth="independent", hidden=["computation_delay"])
+        run_benchmark(tmp_path / "x", truth="independent", hidden=["frictional_memory"])
     with pytest.raises(ConfigError, match="truth family 'own'"):
         run_benchmark(tmp_path / "x", hidden=["amplifier_dynamics"])
     for bad in (-0.01, 0.5, math.nan, True, "0.01"):
