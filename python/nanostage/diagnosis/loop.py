@@ -953,37 +953,6 @@ def _missed_marks(judge: SignatureJudge, system: System) -> list[str]:
     return [str(m["feature"]) for m in misses(judge.measured, simulated)]
 
 
-def speed_mark_shares(
-    judge: SignatureJudge, before: System, systems: Sequence[System]
-) -> list[float] | None:
-    """The share of the χ² of the :data:`SPEED_MARKS` the model ``before`` misses by more
-    than three standard errors that each of ``systems`` removes (1: all of it; negative:
-    it misses them further; −inf where its simulation fails); None when ``before`` misses
-    none of them or the traces have none (then nothing is simulated)."""
-    if not any(m in judge.measured for m in SPEED_MARKS):
-        return None
-    try:
-        base = judge.simulated(before)
-    except (RuntimeError, ValueError):
-        return None
-    missed = [str(m["feature"]) for m in misses(judge.measured, base)]
-    marks = [m for m in SPEED_MARKS if m in missed]
-    if not marks:
-        return None
-    measured = {m: judge.measured[m] for m in marks}
-    chi0 = chi_square(measured, base)[0]
-    out: list[float] = []
-    for system in systems:
-        try:
-            sim = judge.simulated(system)
-        except (RuntimeError, ValueError):
-            out.append(-math.inf)
-            continue
-        chi1, n = chi_square(measured, sim)
-        out.append(1.0 - chi1 / chi0 if n == len(marks) else -math.inf)
-    return out
-
-
 def speed_mark_support(
     judge: SignatureJudge,
     before: System,
@@ -994,7 +963,7 @@ def speed_mark_support(
     diagnosis calls it) that explain at least ``share`` of the χ² of the
     :data:`SPEED_MARKS` the model ``before`` misses by more than three standard errors,
     with the share each explains (by name; empty when ``before`` misses none of them or
-    the traces have none; :func:`speed_mark_shares`).
+    the traces have none).
 
     A friction law replaces the nominal law, and any law fitted to a model's friction
     takes up part of the law's form error, so it must explain most of the gap
@@ -1002,13 +971,29 @@ def speed_mark_support(
     force builds up after a reversal (presliding); a steady ramp's command is the sliding
     friction at the ramp's speed. When the calibrated model before misses those commands
     (its friction at slow and fast speeds cannot both be right) and a law's fit puts them
-    right, the law explains a mark of its own, whatever share of the gap it removes."""
-    if not results:
+    right, the law explains a mark of its own, whatever share of the gap it removes.
+    Nothing is simulated when the traces have no ramp command."""
+    if not results or not any(m in judge.measured for m in SPEED_MARKS):
         return {}
-    shares = speed_mark_shares(judge, before, [r.fit.system for r in results])
-    if shares is None:
+    try:
+        base = judge.simulated(before)
+    except (RuntimeError, ValueError):
         return {}
-    return {r.effect: x for r, x in zip(results, shares, strict=True) if x >= share}
+    missed = {str(m["feature"]) for m in misses(judge.measured, base)}
+    measured = {m: judge.measured[m] for m in SPEED_MARKS if m in missed}
+    if not measured:
+        return {}
+    chi0 = chi_square(measured, base)[0]
+    out: dict[str, float] = {}
+    for r in results:
+        try:
+            chi1, n = chi_square(measured, judge.simulated(r.fit.system))
+        except (RuntimeError, ValueError):
+            continue  # its simulation failed: no support
+        explained = 1.0 - chi1 / chi0
+        if n == len(measured) and explained >= share:
+            out[r.effect] = explained
+    return out
 
 
 def mark_effects(mark: str) -> tuple[str, ...]:

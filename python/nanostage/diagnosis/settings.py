@@ -132,9 +132,10 @@ class DiagnosisSettings:
     #: The marks of the friction's speed dependence (:data:`~.loop.SPEED_MARKS`: the steady
     #: ramp command at rest and its rise with speed) that the model before misses by more
     #: than three standard errors are the traces' own evidence for a friction law, which a
-    #: law's presliding form error does not reach. A candidate whose own fit removes at
-    #: least this share of their χ² (:func:`~.loop.speed_mark_shares`), a friction law, is
-    #: not held back by :attr:`friction_model_share`. 0 turns the exemption off.
+    #: law's presliding form error does not reach.
+    #: A friction law whose own fit removes at least this share of their χ²
+    #: (:func:`~.loop.speed_mark_support`) is not held back by :attr:`friction_model_share`.
+    #: 0 turns the exemption off.
     speed_mark_share: float = 0.5
     #: Use the measured command (``command_v``) as a second channel of the gap when every
     #: experiment has one: fits, noise floors and significance then weigh the command gap
