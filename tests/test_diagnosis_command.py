@@ -76,7 +76,7 @@ def test_command_plan_compares_the_same_windows_and_ignores_a_limit_cycles_phase
     # The same command: no gap. The oscillation in the hold shifted in phase: no gap there
     # either (sorted values), but a change of its amplitude shows.
     assert np.all(apply_gap_plan(cplan, cmd, cmd) == 0.0)
-    (_, h, b, _, _, _) = plan[-1]
+    (_, h, b, _, _, _, _) = plan[-1]
     shifted = cmd.copy()
     shifted[h:b] = np.roll(cmd[h:b], 7)
     assert np.max(np.abs(apply_gap_plan(cplan, cmd, shifted)[h:b])) < 1e-12

@@ -75,9 +75,12 @@ from nanostage.diagnosis.manifest import load_manifest
 from nanostage.diagnosis.objective import (
     SimulationCache,
     _best_shift,
+    apply_gap_plan,
     autocorrelation_time,
+    command_plan,
     experiment_floors_m,
     experiment_kind,
+    gap_plan,
     gap_residual,
     hold_intervals,
     hunting_ramps,
@@ -695,6 +698,43 @@ def test_a_hunting_ramp_compares_its_tracking_errors_as_distributions() -> None:
     ring = np.where(t >= 50, 8e-7 * np.exp(-(t - 50) / 400) * np.sin(2 * np.pi * t / 25), 0)
     assert hunting_ramps(np.round((ref + ring) / q) * q, ref, q) == []
     assert np.array_equal(gap_residual(lagging, tracking, ref), lagging - tracking)
+
+
+def test_the_hold_after_a_hunting_ramp_is_compared_about_its_own_level() -> None:
+    """A ramp whose tracking error hunts (±20 counts) stops where the cycle left the axis:
+    in the hold after it, a model that sticks 7 counts higher, with the same creep, leaves
+    no gap there (each signal less its own mean over the hold), while a creep twice as
+    large shows. After a ramp that tracks without hunting, the same offset is a gap: that
+    hold is compared as before (its sorted values, level included)."""
+    q = 1e-7
+    t = np.arange(1400)
+    ref = np.where(t < 50, 0.0, np.minimum(t - 49, 1000) * 2e-8)
+    # The hold's first sample (1049) ends the ramp: the axis is stuck from there on.
+    creep = np.where(t >= 1049, 2.4e-7 * (t - 1049) / 351, 0.0)
+
+    def run(amplitude_m: float, stuck_m: float, creep_scale: float = 1.0) -> np.ndarray:
+        e = np.where((t >= 60) & (t < 1049), amplitude_m * np.sin(2 * np.pi * t / 25), 0.0)
+        e = e + np.where(t >= 1049, stuck_m + creep_scale * creep, 0.0)
+        return np.round((ref + e) / q) * q
+
+    meas = run(2e-6, 3e-7)
+    assert hunting_ramps(meas, ref, q) == [(50, 1050)]
+    hold = slice(1052, 1400)
+    assert np.max(np.abs(gap_residual(meas, run(2e-6, 1e-6), ref)[hold])) < 1e-3 * q
+    assert np.sqrt(np.mean(gap_residual(meas, run(2e-6, 3e-7, 3.0), ref)[hold] ** 2)) > 0.8 * q
+    # The hold's level still counts after a ramp that does not hunt.
+    smooth = run(0.0, 3e-7)
+    assert hunting_ramps(smooth, ref, q) == []
+    offset = gap_residual(smooth, run(0.0, 1e-6), ref)[hold]
+    assert np.sqrt(np.mean(offset**2)) > 6e-7
+    # The command's plan carries the same treatment: a command held at another level
+    # after the hunting ramp leaves no gap in that hold.
+    cmd = np.where(t >= 1049, 0.4, 0.0) + 0.01 * np.sin(t / 7.0)
+    cplan = command_plan(gap_plan(meas, ref), cmd)
+    assert (
+        np.max(np.abs(apply_gap_plan(cplan, cmd, cmd + np.where(t >= 1049, -0.3, 0.0))[hold]))
+        < 1e-12
+    )
 
 
 def test_best_shift_is_the_cheapest_clamped_shift() -> None:

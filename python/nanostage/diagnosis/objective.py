@@ -21,6 +21,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -130,20 +131,31 @@ def gap_residual(
     unsettled at its end, see :data:`UNSETTLED_QUANTA`) starts from the phase of that
     oscillation, which no model reproduces either: its transient is compared after the time
     shift of at most :data:`SETTLE_WINDOW` samples that fits best (the minimum over shifts
-    is still a continuous function of the model). Which samples are compared how depends on
-    the measured data only.
+    is still a continuous function of the model). A hold that starts where a hunting ramp
+    ends (within :data:`AFTER_RAMP_SAMPLES`) starts where the cycle left the axis stuck (a
+    stick-slip or a backlash's hunting stops at a random point of its cycle): its level, in
+    the position and in the command that holds it there, is no more predictable than the
+    cycle's phase, so its sorted values are compared less each signal's own mean over the
+    hold (the spread about the level: a limit cycle that goes on, a creep). Which samples
+    are compared how depends on the measured data only.
 
     An experiment whose reference never moves is driven by a known input (an open-loop
     pulse or a disturbance test): its response is compared sample by sample throughout."""
     return apply_gap_plan(gap_plan(measured_m, reference_m), measured_m, simulated_m)
 
 
-#: How :func:`gap_residual` compares one window: ``(a, h, b, aligned, order, trend)``:
-#: samples ``[a, h)`` sample by sample (after the best time shift when ``aligned``),
-#: ``[h, b)`` as sorted values (``order``: the measured samples' ranks there) less
-#: ``trend`` (None for a hold; the reference over ``[h, b)`` for a hunting ramp, whose
-#: tracking errors are compared).
-HoldPlan = tuple[int, int, int, bool, npt.NDArray[np.intp], FloatArray | None]
+#: How :func:`gap_residual` compares one window: ``(a, h, b, aligned, order, trend,
+#: centred)``: samples ``[a, h)`` sample by sample (after the best time shift when
+#: ``aligned``), ``[h, b)`` as sorted values (``order``: the measured samples' ranks there)
+#: less ``trend`` (None for a hold; the reference over ``[h, b)`` for a hunting ramp, whose
+#: tracking errors are compared), and with ``centred`` less each signal's own mean over
+#: ``[h, b)`` (a hold after a hunting ramp, where the axis stuck at a random point of the
+#: cycle: only the spread about the level is compared).
+HoldPlan = tuple[int, int, int, bool, npt.NDArray[np.intp], FloatArray | None, bool]
+
+#: A hold follows a ramp when it starts within this many samples of the ramp's end (a
+#: hold's first sample is the last sample of the move into it).
+AFTER_RAMP_SAMPLES = 2
 
 #: A window hunts when its error spans more than this many reading quanta and repeats
 #: itself: autocorrelation at the cycle's period at least
@@ -220,19 +232,27 @@ def gap_plan(measured_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> list[Hold
     q = reading_quantum(m)
     plan: list[HoldPlan] = []
     unsettled = False
+    hunting = hunting_ramps(m, ref, q)
+    ends = [b for _, b in hunting]
     for a, b in hold_intervals(ref):
         step = abs(ref[a] - ref[a - 1]) if a > 0 else 0.0
-        side = np.sign(m[a:b] - ref[a])
-        start_side = side[0]
-        crossed = np.flatnonzero(side != start_side) if start_side != 0 else np.array([0])
-        h = a + int(crossed[0]) if crossed.size else a + (b - a) // 2
-        plan.append((a, h, b, unsettled and h > a, np.argsort(m[h:b], kind="stable"), None))
+        if any(abs(a - e) <= AFTER_RAMP_SAMPLES for e in ends):
+            # The axis stuck where the cycle left it: a level no model predicts.
+            plan.append((a, a, b, False, np.argsort(m[a:b], kind="stable"), None, True))
+        else:
+            side = np.sign(m[a:b] - ref[a])
+            start_side = side[0]
+            crossed = np.flatnonzero(side != start_side) if start_side != 0 else np.array([0])
+            h = a + int(crossed[0]) if crossed.size else a + (b - a) // 2
+            plan.append(
+                (a, h, b, unsettled and h > a, np.argsort(m[h:b], kind="stable"), None, False)
+            )
         tail = m[max(a, b - SETTLE_WINDOW) : b]
         spread = float(np.ptp(tail)) if tail.size else 0.0
         unsettled = spread > UNSETTLED_QUANTA * q and spread > UNSETTLED_STEP_FRACTION * step
-    for a, b in hunting_ramps(m, ref, q):
+    for a, b in hunting:
         trend = ref[a:b].copy()
-        plan.append((a, a, b, False, np.argsort(m[a:b] - trend, kind="stable"), trend))
+        plan.append((a, a, b, False, np.argsort(m[a:b] - trend, kind="stable"), trend, False))
     return plan
 
 
@@ -243,12 +263,15 @@ def apply_gap_plan(
     m = np.asarray(measured_m, dtype=np.float64)
     s = np.asarray(simulated_m, dtype=np.float64)
     r = m - s
-    for a, h, b, aligned_move, order, trend in plan:
+    for a, h, b, aligned_move, order, trend, centred in plan:
         if aligned_move:
             r[a:h] = m[a:h] - _best_shift(m, s, a, h, SETTLE_WINDOW)
         if b - h > 1:
             aligned = np.empty(b - h)
-            if trend is None:
+            if centred:
+                aligned[order] = np.sort(s[h:b])
+                r[h:b] = (m[h:b] - float(np.mean(m[h:b]))) - (aligned - float(np.mean(aligned)))
+            elif trend is None:
                 aligned[order] = np.sort(s[h:b])
                 r[h:b] = m[h:b] - aligned
             else:
@@ -266,8 +289,8 @@ def command_plan(plan: Sequence[HoldPlan], measured_v: npt.ArrayLike) -> list[Ho
     no trend: its own values are sorted.)"""
     c = np.asarray(measured_v, dtype=np.float64)
     return [
-        (a, h, b, aligned, np.argsort(c[h:b], kind="stable"), None)
-        for a, h, b, aligned, _, _ in plan
+        (a, h, b, aligned, np.argsort(c[h:b], kind="stable"), None, centred)
+        for a, h, b, aligned, _, _, centred in plan
     ]
 
 
@@ -386,10 +409,31 @@ def simulate_readings_and_commands(
             out[j] = (reading, command)
             continue
         e = experiments[j]
-        cost = float(np.sum(gap_residual(e.position_m, reading, e.reference_m) ** 2))
+        cost = float(np.sum(apply_gap_plan(_measured_plan(e), e.position_m, reading) ** 2))
         if out[j] is None or cost < best[j]:
             best[j], out[j] = cost, (reading, command)
     return [o for o in out if o is not None]
+
+
+#: :func:`gap_plan` of the experiments whose backlash flank was chosen, by ``id`` of the
+#: experiment (held with it, so that an id is not reused while its entry lives); cleared
+#: when it holds :data:`_PLAN_MEMO_SIZE` experiments.
+_PLAN_MEMO: dict[int, tuple[Experiment, list[HoldPlan]]] = {}
+_PLAN_MEMO_SIZE: Final = 256
+
+
+def _measured_plan(e: Experiment) -> list[HoldPlan]:
+    """:func:`gap_plan` of an experiment's measured position, computed once per experiment
+    (it depends on the measured data only; a backlash's two flanks are judged by it at
+    every simulation)."""
+    hit = _PLAN_MEMO.get(id(e))
+    if hit is not None and hit[0] is e:
+        return hit[1]
+    plan = gap_plan(e.position_m, e.reference_m)
+    if len(_PLAN_MEMO) >= _PLAN_MEMO_SIZE:
+        _PLAN_MEMO.clear()
+    _PLAN_MEMO[id(e)] = (e, plan)
+    return plan
 
 
 class _PairKey:
