@@ -613,6 +613,60 @@ def test_benchmark_on_the_independent_family_writes_its_scores(
     assert '"family": "independent"' in truth
 
 
+def test_a_case_whose_truth_cannot_be_simulated_is_left_out_not_the_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A case whose independent truth stalls is recorded with its reason and left out of
+    the scores; the benchmark goes on with the next case (a numerical failure in one case
+    of a batch is that case's status, never a lost batch)."""
+    from nanostage.diagnosis import independent_truth as it
+
+    short = it.experiment_design(
+        3, move_s=0.06, dwells_s=(0.02,), ramp_speeds_m_per_s=(1e-3,), ramp_length_m=10e-6
+    )
+    monkeypatch.setattr(it, "experiment_design", lambda: short)
+    real = it.write_case
+
+    def stalls_on_backlash(hidden: str, *a: Any, **kw: Any) -> Any:
+        if hidden == "backlash":
+            raise it.IntegrationStalled("the truth's integration stalled (test)")
+        return real(hidden, *a, **kw)
+
+    monkeypatch.setattr(it, "write_case", stalls_on_backlash)
+    fast = DiagnosisSettings(
+        n_starts_nominal=1,
+        n_starts_candidate=1,
+        forward_rounds=1,
+        refine_top=1,
+        scan_points=2,
+        scan_points_nominal=2,
+        crossfit_folds=0,
+        max_nfev_per_param=2,
+    )
+    s = run_benchmark(
+        tmp_path / "bench",
+        cases=2,
+        seed=5,
+        hidden=["backlash", "none"],
+        settings=fast,
+        progress=False,
+        truth="independent",
+    )
+    assert s["truth_failures"] == [
+        {
+            "case": 0,
+            "hidden": "backlash",
+            "phase": "generating the traces",
+            "error": "the truth's integration stalled (test)",
+        }
+    ]
+    assert [r["hidden"] for r in s["rows"]] == ["none"]
+    assert math.isnan(s["top1"]) and s["false_alarm_rate"] in (0.0, 1.0)
+    assert "backlash" not in s["confusion"]
+    md = (tmp_path / "bench" / "benchmark.md").read_text(encoding="utf-8")
+    assert "1 case(s) not scored, their truth could not be simulated: case 0 (backlash)" in md
+
+
 def test_advice_names_validation_at_positions_training_never_covered() -> None:
     """The independent family's design starts every experiment at its own position (2.2 mm
     apart), so no validation sample lies where a training experiment ran: a friction that

@@ -361,6 +361,32 @@ def test_a_stalled_integration_is_reported_not_hung(monkeypatch: pytest.MonkeyPa
         run.advance(it._initial_state(run, 1e-3, 0.0), 1.0, 1e-3)
 
 
+def test_an_interval_radau_stalls_on_is_integrated_by_lsoda(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The rotor at full voltage crossing the dead band of a 24 µm backlash, the table at
+    # rest (case seed 1560001, exp10_reversal, where a benchmark run once stopped): Radau's
+    # Newton iterations kept failing (77 857 evaluations for the 1 ms interval), LSODA
+    # needs about 250. The result agrees with a tight BDF run within a few tolerance units.
+    monkeypatch.setattr(it, "MAX_RHS_PER_INTERVAL", 3000)
+    run = it._Run(it.draw_truth("backlash", 1560001), level=1.0)
+    y = np.array([0.02403130048, 7.342e-11, 1434.264, -47.51217, -1.860637, -7.478667e-4, 0, 0])
+    with pytest.raises(it.IntegrationStalled, match=r"\(Radau\)"):
+        run._advance(y, -6.0, 1e-3, "Radau")
+    out = run.advance(y, -6.0, 1e-3)
+    act = run.active
+
+    def f(_t: float, s: FloatArray) -> FloatArray:
+        z = y.copy()
+        z[act] = s
+        return run.rhs(-6.0, z)[act]
+
+    ref = solve_ivp(f, (0.0, 1e-3), y[act], method="BDF", rtol=1e-11, atol=run.active_atol / 100)
+    err = np.abs(out[act] - ref.y[:, -1]) / (1e-9 * np.abs(ref.y[:, -1]) + run.active_atol)
+    assert np.max(err) < 20.0
+    assert out[it._W] < -150.0  # the rotor sped up through the dead band
+
+
 def test_rigid_rotor_follows_the_table() -> None:
     # Rigid, the rotor's angle and speed are not integrated: they follow the table's.
     t = it.draw_truth("none", 5)

@@ -615,21 +615,36 @@ def _run_benchmark(
         ACCEPT if own else {k: set(v) for k, v in independent_truth.ACCEPT.items()}
     )
     rows = []
+    # Cases whose truth could not be simulated (the independent family's integrator gave
+    # up): recorded with the reason and left out of the scores; the other cases go on.
+    failed: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     for c in range(cases):
         h = names[c % len(names)]
         case_dir = out / f"case{c:02d}_{h}"
-        manifest, drawn = (
-            generate_case(h, seed * 10_000 + c, case_dir, level_scatter=level_scatter)
-            if own
-            else independent_truth.write_case(
-                h,
-                seed * 10_000 + c,
-                case_dir,
-                workers=os.cpu_count() or 1,
-                level_scatter=level_scatter,
+        try:
+            manifest, drawn = (
+                generate_case(h, seed * 10_000 + c, case_dir, level_scatter=level_scatter)
+                if own
+                else independent_truth.write_case(
+                    h,
+                    seed * 10_000 + c,
+                    case_dir,
+                    workers=os.cpu_count() or 1,
+                    level_scatter=level_scatter,
+                )
             )
-        )
+        except independent_truth.IntegrationStalled as e:
+            failed.append(
+                {"case": c, "hidden": h, "phase": "generating the traces", "error": str(e)}
+            )
+            if progress:
+                print(
+                    f"case {c + 1}/{cases} hidden {h:24s} NOT RUN: its truth could not be "
+                    f"simulated ({e}); left out of the scores",
+                    flush=True,
+                )
+            continue
         t = time.perf_counter()
         # Given settings keep the case's own random seed and scatter (the manifest's), as
         # the defaults do.
@@ -685,7 +700,13 @@ def _run_benchmark(
                 for w in (False, True)
             )
         elif h != "none":
-            oracle, bare = independent_oracles(h, seed * 10_000 + c, manifest)
+            try:
+                oracle, bare = independent_oracles(h, seed * 10_000 + c, manifest)
+            except independent_truth.IntegrationStalled as e:
+                # The diagnosis stands; only the truth's own model is missing from the row.
+                failed.append(
+                    {"case": c, "hidden": h, "phase": "the truth's own model", "error": str(e)}
+                )
         rows.append(
             {
                 "case": c,
@@ -765,17 +786,21 @@ def _run_benchmark(
         "median_crossfit_shrink": float(np.median([r["crossfit_shrink"] for r in eff]))
         if eff and all(r["crossfit_shrink"] is not None for r in eff)
         else None,
-        "median_seconds_per_case": float(np.median([r["seconds"] for r in rows])),
+        "median_seconds_per_case": float(np.median([r["seconds"] for r in rows]))
+        if rows
+        else math.nan,
         "median_phase_seconds": phase_medians,
         "detectable_cases": len(detectable) if truth_check else None,
         "top1_detectable": float(np.mean([r["correct"] for r in detectable]))
         if detectable
         else math.nan,
         "total_seconds": time.perf_counter() - t0,
+        "truth_failures": failed,
         "confusion": confusion,
         "rows": rows,
     }
     write_json(summary, out / "benchmark.json", indent=1)
+    skipped = [f for f in failed if f["phase"] == "generating the traces"]
     md = [
         "# Diagnosis blind benchmark",
         "",
@@ -850,6 +875,16 @@ def _run_benchmark(
                 "",
             ]
             if phase_medians
+            else []
+        ),
+        *(
+            [
+                f"{len(skipped)} case(s) not scored, their truth could not be simulated: "
+                + "; ".join(f"case {f['case']} ({f['hidden']})" for f in skipped)
+                + " (`benchmark.json` `truth_failures`).",
+                "",
+            ]
+            if skipped
             else []
         ),
         "Confusion matrix (rows: hidden effect; columns: first selected effect):",

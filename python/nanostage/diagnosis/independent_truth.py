@@ -499,8 +499,17 @@ class _Run:
         return np.array([i for i in range(self.n_states) if i not in drop], dtype=np.intp)
 
     def advance(self, y: FloatArray, u_cmd: float, dt: float) -> FloatArray:
-        """The state after ``dt`` s at the voltage ``u_cmd`` (Radau, rtol 1e-9). Raises
-        :class:`IntegrationStalled` after :data:`MAX_RHS_PER_INTERVAL` evaluations."""
+        """The state after ``dt`` s at the voltage ``u_cmd`` (Radau, rtol 1e-9). An interval
+        where Radau makes no headway (over :data:`MAX_RHS_PER_INTERVAL` evaluations: its
+        Newton iterations kept failing, as while a rotor at full voltage crosses a
+        backlash's dead band) is integrated again from its start by LSODA at the same
+        tolerances; :class:`IntegrationStalled` is raised when that stalls too."""
+        try:
+            return self._advance(y, u_cmd, dt, "Radau")
+        except IntegrationStalled:
+            return self._advance(y, u_cmd, dt, "LSODA")
+
+    def _advance(self, y: FloatArray, u_cmd: float, dt: float, method: str) -> FloatArray:
         act = self.active
         full = np.array(y, dtype=np.float64)
         calls = 0
@@ -511,7 +520,7 @@ class _Run:
             if calls > MAX_RHS_PER_INTERVAL:
                 raise IntegrationStalled(
                     f"the truth's integration stalled: over {MAX_RHS_PER_INTERVAL} "
-                    f"right-hand-side evaluations in one {dt:.3g} s interval at "
+                    f"right-hand-side evaluations ({method}) in one {dt:.3g} s interval at "
                     f"table position {y[_X]:.9g} m, speed {y[_V]:.3g} m/s, "
                     f"voltage {u_cmd:.4g} V"
                 )
@@ -524,13 +533,16 @@ class _Run:
             f,
             (0.0, dt),
             full[act],
-            method="Radau",
+            method=method,
             rtol=1e-9,
             atol=self.active_atol,
             first_step=min(dt, 1e-6),
         )
         if not sol.success:
-            raise RuntimeError(f"integration failed: {sol.message}")
+            raise IntegrationStalled(
+                f"the truth's integration failed ({method}: {sol.message}) in a {dt:.3g} s "
+                f"interval at table position {y[_X]:.9g} m, voltage {u_cmd:.4g} V"
+            )
         out = full.copy()
         out[act] = sol.y[:, -1]
         if self.truth.rigid:
