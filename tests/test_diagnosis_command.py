@@ -550,6 +550,31 @@ def test_advice_names_the_experiment_alone_at_the_largest_size_of_its_kind() -> 
     assert "repeat r2, or add a second ramp at 1 mm/s" in lone[0]["experiment"]
 
 
+#: Diagnosis settings that take a short independent case through the benchmark in seconds.
+FAST_BENCHMARK = DiagnosisSettings(
+    n_starts_nominal=1,
+    n_starts_candidate=1,
+    n_starts_friction_models=1,
+    forward_rounds=1,
+    refine_top=1,
+    scan_points=2,
+    scan_points_nominal=2,
+    crossfit_folds=0,
+    max_nfev_per_param=2,
+)
+
+
+def _short_independent_design(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """A three-experiment independent design, short moves, made the family's design."""
+    from nanostage.diagnosis import independent_truth as it
+
+    short = it.experiment_design(
+        3, move_s=0.06, dwells_s=(0.02,), ramp_speeds_m_per_s=(1e-3,), ramp_length_m=10e-6
+    )
+    monkeypatch.setattr(it, "experiment_design", lambda: short)
+    return short
+
+
 def test_benchmark_on_the_independent_family_writes_its_scores(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -559,27 +584,13 @@ def test_benchmark_on_the_independent_family_writes_its_scores(
     truth-started check for this family."""
     from nanostage.diagnosis import independent_truth as it
 
-    short = it.experiment_design(
-        3, move_s=0.06, dwells_s=(0.02,), ramp_speeds_m_per_s=(1e-3,), ramp_length_m=10e-6
-    )
-    monkeypatch.setattr(it, "experiment_design", lambda: short)
-    fast = DiagnosisSettings(
-        n_starts_nominal=1,
-        n_starts_candidate=1,
-        n_starts_friction_models=1,
-        forward_rounds=1,
-        refine_top=1,
-        scan_points=2,
-        scan_points_nominal=2,
-        crossfit_folds=0,
-        max_nfev_per_param=2,
-    )
+    short = _short_independent_design(monkeypatch)
     s = run_benchmark(
         tmp_path / "bench",
         cases=1,
         seed=5,
         hidden=["offset_force"],
-        settings=fast,
+        settings=FAST_BENCHMARK,
         progress=False,
         truth="independent",
     )
@@ -621,10 +632,7 @@ def test_a_case_whose_truth_cannot_be_simulated_is_left_out_not_the_run(
     of a batch is that case's status, never a lost batch)."""
     from nanostage.diagnosis import independent_truth as it
 
-    short = it.experiment_design(
-        3, move_s=0.06, dwells_s=(0.02,), ramp_speeds_m_per_s=(1e-3,), ramp_length_m=10e-6
-    )
-    monkeypatch.setattr(it, "experiment_design", lambda: short)
+    _short_independent_design(monkeypatch)
     real = it.write_case
 
     def stalls_on_backlash(hidden: str, *a: Any, **kw: Any) -> Any:
@@ -633,22 +641,12 @@ def test_a_case_whose_truth_cannot_be_simulated_is_left_out_not_the_run(
         return real(hidden, *a, **kw)
 
     monkeypatch.setattr(it, "write_case", stalls_on_backlash)
-    fast = DiagnosisSettings(
-        n_starts_nominal=1,
-        n_starts_candidate=1,
-        forward_rounds=1,
-        refine_top=1,
-        scan_points=2,
-        scan_points_nominal=2,
-        crossfit_folds=0,
-        max_nfev_per_param=2,
-    )
     s = run_benchmark(
         tmp_path / "bench",
         cases=2,
         seed=5,
         hidden=["backlash", "none"],
-        settings=fast,
+        settings=FAST_BENCHMARK,
         progress=False,
         truth="independent",
     )
