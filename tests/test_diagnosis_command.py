@@ -272,6 +272,35 @@ def test_a_friction_law_must_explain_most_of_the_gap() -> None:
     assert not worse.significant and "complexity penalty" in " ".join(worse.reasons)
 
 
+def test_a_candidate_that_widens_the_pooled_gap_is_not_significant() -> None:
+    """Under the relative significance, a candidate that cuts three small gaps tenfold and
+    makes the largest one worse passes the per-experiment (geometric) rules, yet widens
+    the pooled validation gap: beyond ``max_pooled_widening`` it is not significant, and
+    says why. Within it, or with the rule off (negative), the geometric rules decide."""
+    base = np.array([100.0, 4.0, 4.0, 4.0]) * 1e-14
+    st = DiagnosisSettings()
+    assert st.max_pooled_widening == 0.05
+
+    def judge(largest: float, settings: DiagnosisSettings) -> CandidateResult:
+        after = np.array([largest, 0.4, 0.4, 0.4]) * 1e-14
+        return _judge_four("offset_force", 1, base, after, 1e-9, settings)
+
+    # Pooled mean square 28 → 35.3 (×1.2607): RMS shrink 1 − √1.2607 ≈ −12.3 %.
+    wide = judge(140.0, st)
+    assert wide.shrink == pytest.approx(1.0 - math.sqrt(35.3 / 28.0), rel=1e-12)
+    assert wide.geometric_shrink > 0.4 and wide.p_value < st.p_value
+    assert not wide.significant
+    assert any("pooled validation gap widens (529 → 594 nm, shrink -12%" in x for x in wide.reasons)
+    assert wide.to_dict()["significant"] is False
+    off = judge(140.0, dc.replace(st, max_pooled_widening=-1.0))
+    assert off.significant, off.reasons
+    # 28 → 25.3: 4.9 % narrower; 28 → 29.05: 1.9 % wider, within the 5 %.
+    for largest in (100.0, 115.0):
+        r = judge(largest, st)
+        assert r.significant, r.reasons
+        assert abs(r.shrink) < st.max_pooled_widening
+
+
 def test_speed_mark_support_names_the_laws_that_put_the_ramp_marks_right() -> None:
     """``speed_mark_support``: the share of the χ² of the speed marks (ramp level and
     slope) the model before misses by more than 3 standard errors that each friction law's

@@ -817,9 +817,10 @@ def diagnose_experiments(
             judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
             own = {r.effect: r for r in results}
             # The selection carries the round's own fit (the training experiments): an
-            # effect whose own fit does not differ from none is not named on the folds'
-            # refits, which saw the validation experiments too.
-            judged = without_unsupported(judged, own)
+            # effect whose own fit does not differ from none, or widens the pooled
+            # validation gap, is not named on the folds' refits, which saw the validation
+            # experiments too.
+            judged = without_unsupported(judged, own, st.max_pooled_widening)
             cross_judged.append(judged)
             # A tie among the cross-judged candidates is broken on the signatures of the
             # round's own fits (all starts, the training experiments; the fits the report's
@@ -1873,6 +1874,13 @@ def _verdict(
         reasons.append(
             f"the measured command (a channel the fit does not use) gets worse: its RMS "
             f"residual × {command_ratio:.2f}"
+        )
+    if st.max_pooled_widening >= 0.0 and shrink < -st.max_pooled_widening:
+        ok = False
+        reasons.append(
+            f"the pooled validation gap widens ({rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, "
+            f"shrink {shrink:.0%}, beyond −{st.max_pooled_widening:.0%}): the effect trades "
+            "one experiment's residual for another's"
         )
     if ok and p_ok:
         reasons.append(

@@ -29,7 +29,10 @@ Relative significance (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.si
     on the candidate holds in both modes: the gap before must exceed ``1.5 ×`` the noise
     floor (each experiment weighted by its own floor: there is something to explain), the
     large-explained-gap rule (with the geometric shrink here), and the command check.
-    ``"pooled"`` applies the rules above.
+    ``"pooled"`` applies the rules above. Under ``"relative"`` one rule looks at the pooled
+    gap: a candidate that widens it by more than
+    :attr:`~nanostage.diagnosis.settings.DiagnosisSettings.max_pooled_widening` (its
+    small gaps cut, its large ones made worse) is not significant.
 """
 
 from __future__ import annotations
@@ -392,14 +395,19 @@ def null_test_p(fit: Fit, params: Sequence[tuple[str, Param]]) -> float | None:
 
 
 def without_unsupported(
-    judged: Sequence[CandidateResult], own: Mapping[str, CandidateResult]
+    judged: Sequence[CandidateResult],
+    own: Mapping[str, CandidateResult],
+    max_pooled_widening: float = -1.0,
 ) -> list[CandidateResult]:
     """``judged`` (a round's candidates judged on every experiment, each refitted on folds
     that hold validation experiments too) with every significant one whose own fit of the
     round (``own``: by effect, fitted on the training experiments; the fit a selection
     carries into the model) failed the null test marked not significant, with the reason:
     the effect it would name is not there in the fit the selection would carry, only in
-    fits that saw the validation experiments."""
+    fits that saw the validation experiments. With ``max_pooled_widening`` ≥ 0
+    (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.max_pooled_widening`), so is
+    one whose own fit widens the pooled validation gap by more than that fraction: the
+    model the selection would carry makes the gap the report gives larger."""
     out = []
     for r in judged:
         mine = own.get(r.effect)
@@ -409,6 +417,18 @@ def without_unsupported(
                 "differ from none"
                 + ("" if mine.null_p_value is None else f" (Wald p = {mine.null_p_value:.3f})")
                 + ": the effect shows only in refits that saw the validation experiments"
+            )
+            r = replace(r, significant=False, reasons=[*r.reasons, reason])
+        elif (
+            r.significant
+            and mine is not None
+            and max_pooled_widening >= 0.0
+            and mine.shrink < -max_pooled_widening
+        ):
+            reason = (
+                "its fit on the training experiments, which a selection carries, widens the "
+                f"pooled validation gap (shrink {mine.shrink:.0%}, beyond "
+                f"−{max_pooled_widening:.0%})"
             )
             r = replace(r, significant=False, reasons=[*r.reasons, reason])
         out.append(r)

@@ -117,6 +117,17 @@ class DiagnosisSettings:
     #: candidate removes at least :attr:`large_shrink` of it (RMS). 0 turns the rule off.
     large_gap_factor: float = 10.0
     large_shrink: float = 0.6
+    #: A candidate whose fitted model widens the pooled validation gap (all validation
+    #: samples, the gap the report's headline gives) by more than this fraction of its RMS
+    #: is not significant, whatever the per-experiment (geometric) terms say: an effect
+    #: that makes the largest gaps worse does not explain the gap, it trades one
+    #: experiment's residual for another's. Under the relative significance this is the
+    #: one rule on the pooled gap (the pooled significance already asks for a shrink above
+    #: the complexity penalty). The same holds for a candidate judged on every experiment
+    #: whose own fit (the one a selection carries) widens the round's pooled validation
+    #: gap (:func:`~nanostage.diagnosis.select.without_unsupported`). A negative value
+    #: turns the rule off.
+    max_pooled_widening: float = 0.05
     #: A friction-law candidate (:data:`~.loop.FRICTION_MODELS`: `coulomb_viscous`,
     #: `stribeck`, `dahl`, `lugre`, `gms`) replaces the nominal friction law, and every law
     #: is an approximation: another law fitted to a model's friction always takes up part
