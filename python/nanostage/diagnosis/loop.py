@@ -45,6 +45,7 @@ from .select import (
     rank_key,
     relative_terms,
     significance_mode,
+    widens_pooled_gap,
     without_unsupported,
 )
 from .settings import (
@@ -1875,7 +1876,7 @@ def _verdict(
             f"the measured command (a channel the fit does not use) gets worse: its RMS "
             f"residual × {command_ratio:.2f}"
         )
-    if st.max_pooled_widening >= 0.0 and shrink < -st.max_pooled_widening:
+    if widens_pooled_gap(shrink, st.max_pooled_widening):
         ok = False
         reasons.append(
             f"the pooled validation gap widens ({rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, "

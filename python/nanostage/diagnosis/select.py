@@ -394,6 +394,13 @@ def null_test_p(fit: Fit, params: Sequence[tuple[str, Param]]) -> float | None:
     return float(chi2.sf(w, rank))
 
 
+def widens_pooled_gap(shrink: float, max_pooled_widening: float) -> bool:
+    """Whether a pooled RMS ``shrink`` widens the gap by more than ``max_pooled_widening``
+    (:attr:`~nanostage.diagnosis.settings.DiagnosisSettings.max_pooled_widening`; negative:
+    the rule is off, never)."""
+    return max_pooled_widening >= 0.0 and shrink < -max_pooled_widening
+
+
 def without_unsupported(
     judged: Sequence[CandidateResult],
     own: Mapping[str, CandidateResult],
@@ -422,8 +429,7 @@ def without_unsupported(
         elif (
             r.significant
             and mine is not None
-            and max_pooled_widening >= 0.0
-            and mine.shrink < -max_pooled_widening
+            and widens_pooled_gap(mine.shrink, max_pooled_widening)
         ):
             reason = (
                 "its fit on the training experiments, which a selection carries, widens the "
