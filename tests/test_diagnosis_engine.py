@@ -112,6 +112,7 @@ from nanostage.diagnosis.select import (
     relative_terms,
     significance_mode,
     too_few_to_test,
+    turned_down,
     without_unsupported,
 )
 from nanostage.diagnosis.settings import (
@@ -2881,11 +2882,96 @@ def test_the_round_selects_by_the_cross_judged_results(
         forward_rounds=1,
         level_scatter=0.0,
         max_pooled_widening=-1.0,
+        measured_shrink_rule=False,
     )
     d = diagnose(m, None, settings=st, progress=False)
     assert d.report["selected"] == chosen
     first = next(c for c in d.report["candidates"] if c["effect"] == chosen[0])
     assert d.report["gap_after"]["total_rms_m"] == pytest.approx(first["validation_rms_m"])
+
+
+def test_the_rule_on_the_measured_gap_judges_the_headlines_gaps(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The measured-gap rule compares the pooled validation gap of the reading, as the
+    report's headline gives it: its gap of the model before round 1 is the report's gap
+    before, its gap of the selected pick the report's gap after (one round selects)."""
+    import nanostage.diagnosis.loop as lp
+
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    real = lp._measured_rms
+    seen: list[float] = []
+
+    def recorded(ctx: Any, fits: Any) -> float:
+        seen.append(real(ctx, fits))
+        return seen[-1]
+
+    monkeypatch.setattr(lp, "_measured_rms", recorded)
+    st = dc.replace(FAST, crossfit_folds=0, forward_rounds=1)
+    r = diagnose(m, None, settings=st, progress=False).report
+    assert r["selected"] == ["asymmetric_friction"]
+    # One pick, judged once: before and after.
+    assert len(seen) == 2
+    assert seen[0] == pytest.approx(r["gap_before"]["total_rms_m"], rel=1e-12)
+    assert seen[1] == pytest.approx(r["gap_after"]["total_rms_m"], rel=1e-12)
+    penalty = st.penalty_base + st.penalty_per_param * 2
+    assert 1.0 - seen[1] / seen[0] > penalty
+
+
+def test_a_pick_that_leaves_the_measured_gap_is_turned_down(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A round's pick whose fit shrinks the measured pooled validation gap by no more than
+    its complexity penalty is not named, whatever the judging found: it is marked not
+    significant with the reason, and the round picks again (here the hidden asymmetry's
+    candidate, made to leave the measured gap as it was). With the rule off it is named."""
+    import nanostage.diagnosis.loop as lp
+
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    real = lp._measured_rms
+    before: list[float] = []
+
+    def unchanged_by_asymmetry(ctx: Any, fits: Any) -> float:
+        asym = any(
+            f.system.effects.motor_friction is not None
+            and f.system.effects.motor_friction.asymmetry != 0.0
+            for f in fits
+        )
+        if asym and before:
+            return before[0]
+        value = real(ctx, fits)
+        before.append(value)
+        return value
+
+    monkeypatch.setattr(lp, "_measured_rms", unchanged_by_asymmetry)
+    st = dc.replace(FAST, crossfit_folds=0, forward_rounds=1)
+    r = diagnose(m, None, settings=st, progress=False).report
+    assert "asymmetric_friction" not in r["selected"]
+    row = next(c for c in r["candidates"] if c["effect"] == "asymmetric_friction")
+    assert not row["significant"]
+    why = [w for w in row["why"] if w.startswith("the gap as measured")]
+    assert len(why) == 1 and "shrink 0.0% ≤ complexity penalty 7%" in why[0], row["reasons"]
+    # Whatever the round picked instead passed the rule on its own measured gap.
+    for name in r["selected"]:
+        other = next(c for c in r["candidates"] if c["effect"] == name)
+        assert not any(w.startswith("the gap as measured") for w in other["why"])
+    off = diagnose(
+        m, None, settings=dc.replace(st, measured_shrink_rule=False), progress=False
+    ).report
+    assert off["selected"] == ["asymmetric_friction"]
+
+
+def test_turned_down_marks_each_named_candidate_once() -> None:
+    a = candidate_result("a", [1e-14], rms_m=1e-7)
+    b = candidate_result("b", [1e-14], rms_m=1e-7)
+    out = turned_down([a, b], {"a": "why"})
+    assert [r.effect for r in out] == ["a", "b"]
+    assert not out[0].significant and out[0].reasons[-1] == "why"
+    assert out[1] is b
+    again = turned_down(out, {"a": "why"})
+    assert again[0].reasons.count("why") == 1 and not again[0].significant
 
 
 def test_screening_moves_the_held_nominal_by_its_linearised_best(tmp_path: Path) -> None:

@@ -45,6 +45,7 @@ from .select import (
     rank_key,
     relative_terms,
     significance_mode,
+    turned_down,
     widens_pooled_gap,
     without_unsupported,
 )
@@ -789,63 +790,79 @@ def diagnose_experiments(
             pool_names = [r.effect for r in results]
         signature_distances.append({})
         signature_marks.append([])
-        best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
-        while best is not None and best.effect in held:
-            # A selected effect is fitted with the free parameters too: a winner known from
-            # its held screening only is refitted from all starts, and the round picks
-            # again.
-            now = (current, current_ms, current_cmd, current_units)
-            _refine(
-                [by_name[best.effect]], now, ctx, results, held, skipped, rnd, progress, executor
-            )
-            held.discard(best.effect)
-            results[:] = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
-            results.sort(key=ranked)
-            best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
-        clock.lap("selection", rnd + 1)
-        if st.cross_judge_folds > 1 and len(ctx.folds) == 1:
-            # Judged again on every experiment: the round picks among its refitted
-            # candidates (the winner above among them) by these results, and selects that
-            # candidate's fit above.
-            pool = [(by_name[r.effect][1], r) for r in results if r.effect not in held]
-            n_all = len(ctx.folds[0][0]) + len(ctx.folds[0][1])
-            print_progress(
-                f"  round {rnd + 1}: judging the {len(pool)} refitted candidates again on all "
-                f"{n_all} experiments ({len(cross_judge_split(n_all, st.cross_judge_folds))} "
-                "folds)",
-                progress,
-            )
-            judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
-            own = {r.effect: r for r in results}
-            # The selection carries the round's own fit (the training experiments): an
-            # effect whose own fit does not differ from none, or widens the pooled
-            # validation gap, is not named on the folds' refits, which saw the validation
-            # experiments too.
-            judged = without_unsupported(judged, own, st.max_pooled_widening)
-            cross_judged.append(judged)
-            # A tie among the cross-judged candidates is broken on the signatures of the
-            # round's own fits (all starts, the training experiments; the fits the report's
-            # signature table shows), not on a fold's local refit: that fold leaves out a
-            # third of the experiments, possibly those that show the effect, so its fit
-            # may have drifted away from it.
-
-            def on_own_fits(
-                tied: Sequence[CandidateResult], own: Mapping[str, CandidateResult] = own
-            ) -> list[tuple[float, int]]:
-                return signature_chi_squares([own.get(r.effect, r) for r in tied])
-
-            # The cross-judged pick stands: a tie of the validation round before it no
-            # longer counts.
-            signature_distances[-1], signature_marks[-1] = {}, []
-            pick = pick_winner(judged, st, on_own_fits, st.signature_margin)
-            best = None if pick is None else next(r for r in results if r.effect == pick.effect)
-            if pick is not None:
+        cross = st.cross_judge_folds > 1 and len(ctx.folds) == 1
+        # Picks the measured-gap rule turned down this round, with the reason
+        # (:attr:`DiagnosisSettings.measured_shrink_rule`): they stay not significant
+        # whatever a later judging of the round says, and the round picks again.
+        unmeasured: dict[str, str] = {}
+        own: dict[str, CandidateResult] = {}
+        on_judged = False
+        while True:
+            if not on_judged:
+                results[:] = turned_down(results, unmeasured)
+                best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
+                while best is not None and best.effect in held:
+                    # A selected effect is fitted with the free parameters too: a winner
+                    # known from its held screening only is refitted from all starts, and
+                    # the round picks again.
+                    now = (current, current_ms, current_cmd, current_units)
+                    _refine(
+                        [by_name[best.effect]],
+                        now,
+                        ctx,
+                        results,
+                        held,
+                        skipped,
+                        rnd,
+                        progress,
+                        executor,
+                    )
+                    held.discard(best.effect)
+                    again = _judged_holm(ctx, results, current_ms, current_cmd, current_units)
+                    results[:] = turned_down(again, unmeasured)
+                    results.sort(key=ranked)
+                    best = pick_winner(results, st, signature_chi_squares, st.signature_margin)
+                clock.lap("selection", rnd + 1)
+            if cross and not on_judged:
+                # Judged again on every experiment: the round picks among its refitted
+                # candidates (the winner above among them) by these results, and selects
+                # that candidate's fit above.
+                pool = [(by_name[r.effect][1], r) for r in results if r.effect not in held]
+                n_all = len(ctx.folds[0][0]) + len(ctx.folds[0][1])
                 print_progress(
-                    f"  round {rnd + 1}: {pick.effect} judged on all experiments: geometric "
-                    f"shrink {pick.geometric_shrink:.1%}, p = {pick.p_value:.3f}",
+                    f"  round {rnd + 1}: judging the {len(pool)} refitted candidates again on "
+                    f"all {n_all} experiments "
+                    f"({len(cross_judge_split(n_all, st.cross_judge_folds))} folds)",
                     progress,
                 )
-            clock.lap("judged on every experiment", rnd + 1)
+                judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
+                own.update({r.effect: r for r in results})
+                # The selection carries the round's own fit (the training experiments): an
+                # effect whose own fit does not differ from none, or widens the pooled
+                # validation gap, is not named on the folds' refits, which saw the
+                # validation experiments too.
+                cross_judged.append(without_unsupported(judged, own, st.max_pooled_widening))
+                # The cross-judged pick stands: a tie of the validation round before it no
+                # longer counts.
+                signature_distances[-1], signature_marks[-1] = {}, []
+                on_judged = True
+            if on_judged:
+                cross_judged[-1] = turned_down(cross_judged[-1], unmeasured)
+                best = _cross_judged_pick(
+                    cross_judged[-1], results, own, signature_chi_squares, st, rnd, progress
+                )
+                clock.lap("judged on every experiment", rnd + 1)
+            # The effect named must shrink the gap as the report gives it (measured, pooled).
+            reason = (
+                None
+                if best is None or not st.measured_shrink_rule
+                else _measured_shrink_reason(ctx, current_fits, best, st)
+            )
+            if best is None or reason is None:
+                break
+            print_progress(f"  round {rnd + 1}: {best.effect} turned down: {reason}", progress)
+            unmeasured[best.effect] = reason
+            results[:] = turned_down(results, unmeasured)
         if best is None:
             break
         selected.append(best.effect)
@@ -896,6 +913,75 @@ def diagnose_experiments(
             "reused": 0 if ctx.cache is None else ctx.cache.hits,
         },
     }
+
+
+def _cross_judged_pick(
+    judged: Sequence[CandidateResult],
+    results: Sequence[CandidateResult],
+    own: Mapping[str, CandidateResult],
+    signature_chi_squares: Callable[[Sequence[CandidateResult]], list[tuple[float, int]]],
+    st: DiagnosisSettings,
+    rnd: int,
+    progress: bool,
+) -> CandidateResult | None:
+    """The round's result (of ``results``) of the candidate a round picks on its results
+    judged on every experiment (``judged``), or None. A tie among them is broken on the
+    signatures of the round's own fits (``own``: all starts, the training experiments; the
+    fits the report's signature table shows), not on a fold's local refit: that fold leaves
+    out a third of the experiments, possibly those that show the effect, so its fit may have
+    drifted away from it."""
+
+    def on_own_fits(tied: Sequence[CandidateResult]) -> list[tuple[float, int]]:
+        return signature_chi_squares([own.get(r.effect, r) for r in tied])
+
+    pick = pick_winner(judged, st, on_own_fits, st.signature_margin)
+    if pick is None:
+        return None
+    print_progress(
+        f"  round {rnd + 1}: {pick.effect} judged on all experiments: geometric "
+        f"shrink {pick.geometric_shrink:.1%}, p = {pick.p_value:.3f}",
+        progress,
+    )
+    return next(r for r in results if r.effect == pick.effect)
+
+
+def _measured_rms(ctx: _Ctx, fits: Sequence[Fit]) -> float:
+    """The pooled RMS of the validation gap of a model (``fits``: one per fold, each judged
+    on its fold's validation experiments) as measured: the reading alone, without the
+    command channel and without the level-scatter discount (the measure of the report's
+    headline)."""
+    squares, n = 0.0, 0
+    for (_, validate), f in zip(ctx.folds, fits, strict=True):
+        system = f.system
+
+        def build(_values: Sequence[float], s: System = system) -> System:
+            return s
+
+        prob = FitProblem([], build, validate, ctx.st.threads, ctx.adapt, ctx.cache)
+        for r in prob.residuals(system, validate):
+            squares += float(np.sum(r**2))
+            n += r.size
+    return math.sqrt(squares / n) if n else 0.0
+
+
+def _measured_shrink_reason(
+    ctx: _Ctx, before: Sequence[Fit], pick: CandidateResult, st: DiagnosisSettings
+) -> str | None:
+    """Why the effect of ``pick`` cannot be named (its own fits shrink the measured pooled
+    validation gap of the model ``before`` by no more than its complexity penalty,
+    :attr:`DiagnosisSettings.measured_shrink_rule`), or None when it can."""
+    rms0 = _measured_rms(ctx, before)
+    rms1 = _measured_rms(ctx, pick.fold_fits)
+    shrink = 1.0 - rms1 / rms0 if rms0 > 0.0 else 0.0
+    penalty = st.penalty_base + st.penalty_per_param * pick.k_params
+    if shrink > penalty:
+        return None
+    return (
+        f"the gap as measured (the reading pooled over the validation experiments, no "
+        f"level-scatter discount) goes {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink "
+        f"{shrink:.1%} ≤ complexity penalty {penalty:.0%}: the effect does not explain the "
+        "gap the report gives"
+    )
 
 
 def _calibrate_again(

@@ -72,6 +72,7 @@ __all__ = [
     "relative_terms",
     "significance_mode",
     "too_few_to_test",
+    "turned_down",
     "without_unsupported",
 ]
 
@@ -437,6 +438,22 @@ def without_unsupported(
                 f"−{max_pooled_widening:.0%})"
             )
             r = replace(r, significant=False, reasons=[*r.reasons, reason])
+        out.append(r)
+    return out
+
+
+def turned_down(
+    results: Sequence[CandidateResult], reasons: Mapping[str, str]
+) -> list[CandidateResult]:
+    """``results`` with each candidate named in ``reasons`` (effect → why) not significant,
+    its reason added once; the others as they are. Same order."""
+    out = []
+    for r in results:
+        why = reasons.get(r.effect)
+        if why is not None and (r.significant or why not in r.reasons):
+            r = replace(
+                r, significant=False, reasons=[*r.reasons, *([] if why in r.reasons else [why])]
+            )
         out.append(r)
     return out
 

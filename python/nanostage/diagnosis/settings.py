@@ -128,6 +128,15 @@ class DiagnosisSettings:
     #: gap (:func:`~nanostage.diagnosis.select.without_unsupported`). A negative value
     #: turns the rule off.
     max_pooled_widening: float = 0.05
+    #: The effect a round names must shrink the gap as measured (the report's headline:
+    #: the pooled validation gap of the reading, without the command channel and without
+    #: the level-scatter discount the judging uses) by more than its complexity penalty
+    #: (:attr:`penalty_base` + :attr:`penalty_per_param` per parameter). Otherwise the
+    #: round's pick is not significant and the round picks again: the judging may find an
+    #: effect on the discounted, command-weighted gaps, but the report names an effect as
+    #: the cause of the gap it gives, and an effect that leaves that gap as it was (or
+    #: larger) does not explain it. False turns the rule off.
+    measured_shrink_rule: bool = True
     #: A friction-law candidate (:data:`~.loop.FRICTION_MODELS`: `coulomb_viscous`,
     #: `stribeck`, `dahl`, `lugre`, `gms`) replaces the nominal friction law, and every law
     #: is an approximation: another law fitted to a model's friction always takes up part
