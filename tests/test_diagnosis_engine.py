@@ -1883,7 +1883,7 @@ def test_judged_on_every_experiment_an_effect_whose_own_fit_widens_the_gap_is_no
     }
     out = without_unsupported(judged, own, 0.05)
     assert [r.significant for r in out] == [False, True]
-    assert out[0].reasons[-1] == (
+    assert out[0].reasons[0] == (
         "its fit on the training experiments, which a selection carries, widens the pooled "
         "validation gap (shrink -16%, beyond −5%)"
     )
@@ -1914,7 +1914,7 @@ def test_judged_on_every_experiment_an_effect_absent_from_its_own_fit_is_not_nam
     out = without_unsupported(judged, own)
     assert [r.effect for r in out] == ["offset_force", "backlash", "gms"]
     assert [r.significant for r in out] == [False, True, True]
-    why = out[0].reasons[-1]
+    why = out[0].reasons[0]
     assert why.startswith("its fit on the training experiments, which a selection carries")
     assert "does not differ from none (Wald p = 0.534)" in why
     assert out[1] is judged[1] and out[2] is judged[2]
@@ -2964,11 +2964,12 @@ def test_a_pick_that_leaves_the_measured_gap_is_turned_down(
 
 
 def test_turned_down_marks_each_named_candidate_once() -> None:
-    a = candidate_result("a", [1e-14], rms_m=1e-7)
+    """The reason comes first, before the judging's words (here a pass), and only once."""
+    a = dc.replace(candidate_result("a", [1e-14], rms_m=1e-7), reasons=["passed"])
     b = candidate_result("b", [1e-14], rms_m=1e-7)
     out = turned_down([a, b], {"a": "why"})
     assert [r.effect for r in out] == ["a", "b"]
-    assert not out[0].significant and out[0].reasons[-1] == "why"
+    assert not out[0].significant and out[0].reasons == ["why", "passed"]
     assert out[1] is b
     again = turned_down(out, {"a": "why"})
     assert again[0].reasons.count("why") == 1 and not again[0].significant

@@ -426,7 +426,7 @@ def without_unsupported(
                 + ("" if mine.null_p_value is None else f" (Wald p = {mine.null_p_value:.3f})")
                 + ": the effect shows only in refits that saw the validation experiments"
             )
-            r = replace(r, significant=False, reasons=[*r.reasons, reason])
+            r = replace(r, significant=False, reasons=[reason, *r.reasons])
         elif (
             r.significant
             and mine is not None
@@ -437,7 +437,7 @@ def without_unsupported(
                 f"pooled validation gap (shrink {mine.shrink:.0%}, beyond "
                 f"−{max_pooled_widening:.0%})"
             )
-            r = replace(r, significant=False, reasons=[*r.reasons, reason])
+            r = replace(r, significant=False, reasons=[reason, *r.reasons])
         out.append(r)
     return out
 
@@ -446,13 +446,14 @@ def turned_down(
     results: Sequence[CandidateResult], reasons: Mapping[str, str]
 ) -> list[CandidateResult]:
     """``results`` with each candidate named in ``reasons`` (effect → why) not significant,
-    its reason added once; the others as they are. Same order."""
+    its reason added once, first (before the judging's words for it, which may be a pass);
+    the others as they are. Same order."""
     out = []
     for r in results:
         why = reasons.get(r.effect)
         if why is not None and (r.significant or why not in r.reasons):
             r = replace(
-                r, significant=False, reasons=[*r.reasons, *([] if why in r.reasons else [why])]
+                r, significant=False, reasons=[*([] if why in r.reasons else [why]), *r.reasons]
             )
         out.append(r)
     return out
