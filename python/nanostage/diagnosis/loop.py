@@ -795,6 +795,8 @@ def diagnose_experiments(
         # (:attr:`DiagnosisSettings.measured_shrink_rule`): they stay not significant
         # whatever a later judging of the round says, and the round picks again.
         unmeasured: dict[str, str] = {}
+        # The measured gap of the model before, once the round's first pick needs it.
+        measured_before: float | None = None
         own: dict[str, CandidateResult] = {}
         on_judged = False
         while True:
@@ -853,12 +855,12 @@ def diagnose_experiments(
                 )
                 clock.lap("judged on every experiment", rnd + 1)
             # The effect named must shrink the gap as the report gives it (measured, pooled).
-            reason = (
-                None
-                if best is None or not st.measured_shrink_rule
-                else _measured_shrink_reason(ctx, current_fits, best, st)
-            )
-            if best is None or reason is None:
+            if best is None or not st.measured_shrink_rule:
+                break
+            if measured_before is None:
+                measured_before = _measured_rms(ctx, current_fits)
+            reason = _measured_shrink_reason(ctx, measured_before, best, st)
+            if reason is None:
                 break
             print_progress(f"  round {rnd + 1}: {best.effect} turned down: {reason}", progress)
             unmeasured[best.effect] = reason
@@ -965,15 +967,15 @@ def _measured_rms(ctx: _Ctx, fits: Sequence[Fit]) -> float:
 
 
 def _measured_shrink_reason(
-    ctx: _Ctx, before: Sequence[Fit], pick: CandidateResult, st: DiagnosisSettings
+    ctx: _Ctx, rms0: float, pick: CandidateResult, st: DiagnosisSettings
 ) -> str | None:
-    """Why the effect of ``pick`` cannot be named (its own fits shrink the measured pooled
-    validation gap of the model ``before`` by no more than its complexity penalty,
-    :attr:`DiagnosisSettings.measured_shrink_rule`), or None when it can."""
-    rms0 = _measured_rms(ctx, before)
+    """Why the effect of ``pick`` cannot be named (its own fits shrink ``rms0``, the
+    measured pooled validation gap of the model before (:func:`_measured_rms`), by no more
+    than its complexity penalty, :attr:`DiagnosisSettings.measured_shrink_rule`), or None
+    when it can."""
     rms1 = _measured_rms(ctx, pick.fold_fits)
     shrink = 1.0 - rms1 / rms0 if rms0 > 0.0 else 0.0
-    penalty = st.penalty_base + st.penalty_per_param * pick.k_params
+    penalty = st.penalty(pick.k_params)
     if shrink > penalty:
         return None
     return (
@@ -1846,7 +1848,7 @@ def _verdict(
     rms1 = math.sqrt(float(np.mean(ms)))
     shrink = 1.0 - rms1 / rms0 if rms0 > 0 else 0.0
     weighted_shrink = 1.0 - wrms1 / wrms0 if wrms0 > 0 else 0.0
-    penalty = st.penalty_base + st.penalty_per_param * k_params
+    penalty = st.penalty(k_params)
     weighted = bool(np.any(w != 1.0))
     wtag = " (floor-weighted)" if weighted else ""
     relative = st.significance == "relative"

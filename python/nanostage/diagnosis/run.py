@@ -1028,7 +1028,7 @@ def assemble_report(
         evidence.append({"round": i + 1} | ev)
     floor = float(out["floor_rms_m"])
     total_after = float(after["total_rms_m"])
-    penalty = st.penalty_base + st.penalty_per_param
+    penalty = st.penalty(1)
     return {
         "gap_before": before,
         "candidates": candidates,

@@ -451,10 +451,9 @@ def turned_down(
     out = []
     for r in results:
         why = reasons.get(r.effect)
-        if why is not None and (r.significant or why not in r.reasons):
-            r = replace(
-                r, significant=False, reasons=[*([] if why in r.reasons else [why]), *r.reasons]
-            )
+        if why is not None:
+            given = r.reasons if why in r.reasons else [why, *r.reasons]
+            r = replace(r, significant=False, reasons=given)
         out.append(r)
     return out
 

@@ -357,6 +357,11 @@ class DiagnosisSettings:
     #: of simulated again.
     simulation_cache_mb: float = 512.0
 
+    def penalty(self, k_params: int) -> float:
+        """The complexity penalty of a candidate with ``k_params`` parameters: the shrink
+        it must exceed (:attr:`penalty_base` + :attr:`penalty_per_param` per parameter)."""
+        return self.penalty_base + self.penalty_per_param * k_params
+
 
 def with_starts(
     cands: Sequence[Candidate], starts: Mapping[str, Mapping[str, float]] | None
