@@ -245,17 +245,33 @@ _ENDLESS = dataclasses.replace(SEED.integrator, max_steps=10**9, max_events=10**
 
 
 @contextmanager
-def _sigint_after(delay_s: float) -> Iterator[None]:
-    """SIGINT to this process after ``delay_s``, with Python's default handler installed for
-    the duration (pytest may run as a background job with SIGINT ignored)."""
+def _default_sigint() -> Iterator[None]:
+    """Python's default SIGINT handler for the duration (pytest may run as a background job
+    with SIGINT ignored)."""
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def _timer_sigint(delay_s: float) -> Iterator[None]:
+    """SIGINT to this process after ``delay_s`` (whatever handler is installed then)."""
     timer = threading.Timer(delay_s, os.kill, (os.getpid(), signal.SIGINT))
     try:
         timer.start()
         yield
     finally:
         timer.cancel()
-        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def _sigint_after(delay_s: float) -> Iterator[None]:
+    """SIGINT to this process after ``delay_s``, with Python's default handler installed for
+    the duration."""
+    with _default_sigint(), _timer_sigint(delay_s):
+        yield
 
 
 def _stops_on_ctrl_c(call: Callable[[], object]) -> float:
@@ -286,15 +302,18 @@ def test_ctrl_c_stops_an_open_loop_run() -> None:
 
 def test_ctrl_c_stops_the_runs_of_worker_threads_inside_stop_on_interrupt() -> None:
     start = time.monotonic()
+    # The timer starts once the work is submitted: on a loaded machine a worker holding the
+    # GIL could otherwise delay the main thread past 0.3 s before it waits for the result,
+    # and the KeyboardInterrupt would be raised outside `pytest.raises`.
     with (
-        _sigint_after(0.3),
+        _default_sigint(),
         stop_on_interrupt(),
         ThreadPoolExecutor(max_workers=2) as pool,
     ):
         futures = [
             pool.submit(ns.simulate_step, _endless(), 1e-4, duration_s=0.05) for _ in range(2)
         ]
-        with pytest.raises(KeyboardInterrupt):
+        with _timer_sigint(0.3), pytest.raises(KeyboardInterrupt):
             for f in futures:
                 f.result()
     assert time.monotonic() - start < 10.0
@@ -319,12 +338,12 @@ def test_ctrl_c_stops_a_friction_response_in_a_worker_thread_inside_stop_on_inte
     x = 1e-4 * np.sin(2 * np.pi * 5 * t)
     v = 1e-4 * 2 * np.pi * 5 * np.cos(2 * np.pi * 5 * t)
     with (
-        _sigint_after(0.3),
+        _default_sigint(),
         stop_on_interrupt(),
         ThreadPoolExecutor(max_workers=1) as pool,
     ):
         future = pool.submit(friction_response, f, t, x, v)
-        with pytest.raises(KeyboardInterrupt):
+        with _timer_sigint(0.3), pytest.raises(KeyboardInterrupt):
             future.result()
     e = future.exception()
     assert isinstance(e, ns.SimulationError) and str(e).startswith("interrupted at t = "), e

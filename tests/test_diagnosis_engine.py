@@ -2295,11 +2295,13 @@ def test_friction_model_candidates_are_screened_from_two_starts_and_refitted_fro
     worse than the nominal model, ranked twelfth, and an encoder cyclic error was selected;
     from two starts LuGre was found with a 46 % shrink."""
     seen: dict[str, int] = {}
+    shaped: dict[str, tuple[str, ...]] = {}
     base = presets.seed(1e-3)
 
     def fit_and_validate(*args: Any, **kwargs: Any) -> Any:
         # (base, params, apply, n_starts, seed, screen, scan_points, screen_starts,
         # scan_starts)
+        shaped[args[1][0][0].split(".")[0]] = tuple(kwargs["scan_only"])
         raise _Seen(args[-2], args[-1], args[3])
 
     class _Seen(Exception):
@@ -2324,8 +2326,19 @@ def test_friction_model_candidates_are_screened_from_two_starts_and_refitted_fro
         "backlash": 1,
         "dwell_static_friction": 1,
     }
-    # The dwell gap's basin is narrow: local fits from the four best scanned points.
-    assert scan == {k: 4 if k == "dwell_static_friction" else 1 for k in seen}
+    # The dwell gap's basin is narrow: local fits from the four best scanned points; the
+    # laws that fall with speed scan their shape only, and fit from its three best points.
+    assert scan == {"dwell_static_friction": 4, "gms": 3, "lugre": 3} | {
+        k: 1 for k in ("offset_force", "backlash")
+    }
+    shape = ("static_excess_n", "stribeck_velocity_m_per_s")
+    assert shaped == {
+        "gms": tuple(f"gms.{n}" for n in (*shape, "presliding_spread")),
+        "lugre": tuple(f"lugre.{n}" for n in shape),
+        "offset_force": (),
+        "backlash": (),
+        "dwell_static_friction": (),
+    }
     st = DiagnosisSettings(screen_starts_friction_models=1)
     ctx = SimpleNamespace(st=st, fit_and_validate=fit_and_validate, selected_effects=[])
     with pytest.raises(_Seen) as one:
@@ -2531,6 +2544,51 @@ def test_scan_starts_fit_from_the_next_best_scanned_points(
         assert len(x0s) == 1 + min(k, len(better))
         for got, want in zip(x0s[1:], better, strict=False):
             assert np.allclose(got, want)
+
+
+def test_scan_only_draws_the_flagged_parameters_and_keeps_the_others(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With ``scan_only`` the scan draws only the flagged parameters (a 2-D Latin hypercube
+    over them, as without flags over two parameters) and every scanned point keeps the
+    unflagged one at its start value; the local fit then frees them all and reaches the
+    bowl's bottom. The gap is a synthetic bowl (no simulation)."""
+    seed_system = presets.seed(1e-3)
+    target = np.array([1.5, 1.2, 1.7])
+    seen: list[np.ndarray] = []
+
+    class Bowl(FitProblem):
+        def _vectors(self, us: Any) -> list[np.ndarray]:
+            self.n_evaluations += len(us)
+            seen.extend(np.asarray(u, dtype=float) for u in us)
+            return [np.asarray(u, dtype=float) - target for u in us]
+
+    params = [
+        (n, Param(name=n, unit="-", lower=0.0, upper=1.0, initial=x))
+        for n, x in (("level", 0.3), ("a", 0.9), ("b", 0.1))
+    ]
+    prob = Bowl(params, lambda v: seed_system, [cast(Experiment, None)], 1, lambda s, e: s)
+    fit = prob.fit(1, DiagnosisSettings(), seed=5, scan=32, scan_only=[False, True, True])
+    assert fit.values["level"] == pytest.approx(0.5, abs=1e-3)
+    assert fit.values["b"] == pytest.approx(0.7, abs=1e-3)
+    # The start, then the 32 scanned points: the level held at its start, (a, b) on the
+    # hypercube the scan draws for two parameters.
+    scanned = np.array(seen[1:33])
+    assert np.all(scanned[:, 0] == 1.3)
+    assert np.allclose(scanned[:, 1:], 1.0 + qmc_rows(32, seed=5 + 7919))
+    assert not np.allclose(scanned[:, 1:], scanned[0, 1:])
+
+
+def test_the_scan_only_names_of_every_candidate_are_its_parameters() -> None:
+    """A misspelt name would silently give the scan back every parameter: each name a
+    candidate's scan is limited to is one of its parameters, and the laws that fall with
+    speed scan their shape only."""
+    for system in (presets.seed(1e-3), presets.emps()):
+        cands, _ = applicable_candidates(system, None)
+        for c in cands:
+            assert set(c.scan_only) <= {p.name for p in c.params}, c.name
+        limited = {c.name for c in cands if c.scan_only}
+        assert {"lugre", "gms", "stribeck"} <= limited
 
 
 def qmc_rows(n: int, seed: int) -> np.ndarray:

@@ -59,6 +59,12 @@ class Candidate:
     #: engine gives), for a gap whose basin is narrow enough that the single best scanned
     #: point may lie outside it.
     scan_starts: int = 1
+    #: Names of the parameters the coarse scan draws (the others keep their start values
+    #: during the scan; the local fits free them all); empty: every parameter. A table law
+    #: that falls with speed has its level and presliding stiffness pinned by the slews and
+    #: micro-steps, and a shape (the excess at rest, the speed it fades over) that is
+    #: unknown over decades: its scan spends its points on the shape.
+    scan_only: tuple[str, ...] = ()
 
 
 def _fx(system: System, **changes: object) -> System:
@@ -244,6 +250,11 @@ def _presliding_params(sys: System) -> tuple[Param, ...]:
     )
 
 
+#: The shape of a Stribeck fall (excess at rest, the speed it fades over): what the scan of a
+#: table law that falls with speed draws (:attr:`Candidate.scan_only`).
+_STRIBECK_SHAPE = ("static_excess_n", "stribeck_velocity_m_per_s")
+
+
 def _build() -> dict[str, Callable[[System], Candidate | str]]:
     """Factories: nominal system → candidate, or the reason it does not apply."""
 
@@ -293,6 +304,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             apply=lambda s, v: _fx(s, table_friction=static_map(v[0], v[1], 0.0, v[2])),
             signature="friction falling with speed at low velocity: a breakaway jump at the "
             "start of moves and stick-slip while settling",
+            scan_only=_STRIBECK_SHAPE,
+            scan_starts=3,
         )
 
     def dahl(sys: System) -> Candidate | str:
@@ -337,6 +350,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             ),
             signature="presliding spring plus a Stribeck curve: breakaway overshoot of the "
             "friction force and hysteresis in presliding",
+            scan_only=_STRIBECK_SHAPE,
+            scan_starts=3,
         )
 
     def gms(sys: System) -> Candidate | str:
@@ -359,6 +374,8 @@ def _build() -> dict[str, Callable[[System], Candidate | str]]:
             signature="Maxwell-slip presliding with non-local memory: hysteresis that depends "
             "on the reversal history, a presliding curve that bends over a range of "
             "displacements, plus a Stribeck curve",
+            scan_only=(*_STRIBECK_SHAPE, "presliding_spread"),
+            scan_starts=3,
         )
 
     def asymmetric(sys: System) -> Candidate | str:

@@ -234,6 +234,7 @@ class FitProblem:
         prior: Sequence[float] | None = None,
         scan: int = 0,
         scan_starts: int = 1,
+        scan_only: Sequence[bool] | None = None,
     ) -> Fit:
         """Bounded multi-start least squares (scipy ``trf``) in normalised coordinates. The
         first start is every parameter's ``initial``; with ``prior`` (physical values, e.g.
@@ -246,7 +247,9 @@ class FitProblem:
         start when only one start is allowed, else right after it. ``scan_starts`` > 1 adds
         the next best scanned points (better than the warm start) as further starts. With
         warm parameters and a ``prior`` start, the same points are scanned from the prior
-        start too, and it takes the drawn values of the best of them (if better)."""
+        start too, and it takes the drawn values of the best of them (if better).
+        ``scan_only`` (one flag per parameter): the scan draws only the flagged ones among
+        the drawn parameters (the others keep their start values in it); None: all."""
         k = len(self.params)
         self.scale_m = self.build([p.initial for _, p in self.params]).encoder.count_m
         if k == 0:
@@ -274,7 +277,10 @@ class FitProblem:
             # the closed loop's gap is rugged, and a start far from the right basin can end
             # in a poor local optimum. The best scanned point replaces the warm start when
             # it is better, else it becomes the next start.
-            rows = qmc.LatinHypercube(d=n_draw, seed=seed + 7919).random(scan)
+            drawn = [
+                i for i in range(k - n_draw, k) if scan_only is None or bool(scan_only[i])
+            ] or list(range(k - n_draw, k))
+            rows = qmc.LatinHypercube(d=len(drawn), seed=seed + 7919).random(scan)
 
             def scanned_from(start: FloatArray) -> list[FloatArray]:
                 # The scanned points that beat `start` (its drawn parameters at the scan's
@@ -282,7 +288,7 @@ class FitProblem:
                 cands = []
                 for row in rows:
                     u = start.copy()
-                    u[k - n_draw :] = 1.0 + row
+                    u[drawn] = 1.0 + row
                     cands.append(u)
                 costs = [float(np.sum(v**2)) for v in self._vectors([start, *cands])]
                 return [

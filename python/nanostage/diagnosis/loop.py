@@ -267,6 +267,7 @@ class _Ctx:
         scan_points: int | None,
         screen_starts: int,
         scan_starts: int,
+        scan_only: Sequence[str] = (),
     ) -> tuple[Fit, FitProblem]:
         """A screening fit of ``params`` alone, the free nominal parameters held at their
         ``warm`` values: the same scan and starts over ``params`` as a screening fit with
@@ -299,6 +300,7 @@ class _Ctx:
             if params
             else 0,
             scan_starts=scan_starts,
+            scan_only=_scan_flags([n for n, _ in params], scan_only),
         )
         nf = len(held)
         cov = np.zeros((0, 0))
@@ -389,6 +391,7 @@ class _Ctx:
         scan_starts: int = 1,
         hold: bool = False,
         local: bool = False,
+        scan_only: Sequence[str] = (),
     ) -> tuple[list[Fit], FloatArray, list[list[FloatArray]], list[float | None], FloatArray]:
         """Fit on each fold's training experiments; mean-square gap on its validation ones
         (concatenated over folds), the validation residuals per fold, the mean-square
@@ -423,6 +426,7 @@ class _Ctx:
                     scan_points,
                     screen_starts,
                     scan_starts,
+                    scan_only,
                 )
             else:
                 prob = self.problem(free + list(params), self.builder(base, apply_extra), train)
@@ -448,6 +452,7 @@ class _Ctx:
                     if params
                     else (0 if warm else self.st.scan_points_nominal),
                     scan_starts=scan_starts,
+                    scan_only=_scan_flags([n for n, _ in free + list(params)], scan_only),
                 )
             res, val_command = prob.residuals_and_commands(f.system, validate)
             fits.append(f)
@@ -915,6 +920,14 @@ def diagnose_experiments(
             "reused": 0 if ctx.cache is None else ctx.cache.hits,
         },
     }
+
+
+def _scan_flags(names: Sequence[str], scan_only: Sequence[str]) -> list[bool] | None:
+    """Per parameter of a fit (``names``), whether its scan may draw it
+    (:attr:`~.candidates.Candidate.scan_only`); None when every parameter may."""
+    if not scan_only:
+        return None
+    return [n in scan_only for n in names]
 
 
 def _cross_judged_pick(
@@ -1690,6 +1703,7 @@ def _judge(
             st.screen_starts_friction_models if friction_model else 1,
             cand.scan_starts,
             hold=hold,
+            scan_only=[f"{cand.name}.{n}" for n in cand.scan_only],
         )
         k_params = len(cand.params)
     result = _verdict(
