@@ -2546,9 +2546,7 @@ def test_scan_starts_fit_from_the_next_best_scanned_points(
             assert np.allclose(got, want)
 
 
-def test_scan_only_draws_the_flagged_parameters_and_keeps_the_others(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_scan_only_draws_the_flagged_parameters_and_keeps_the_others() -> None:
     """With ``scan_only`` the scan draws only the flagged parameters (a 2-D Latin hypercube
     over them, as without flags over two parameters) and every scanned point keeps the
     unflagged one at its start value; the local fit then frees them all and reaches the
