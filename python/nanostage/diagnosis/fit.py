@@ -277,9 +277,8 @@ class FitProblem:
             # the closed loop's gap is rugged, and a start far from the right basin can end
             # in a poor local optimum. The best scanned point replaces the warm start when
             # it is better, else it becomes the next start.
-            drawn = [i for i in range(k - n_draw, k) if scan_only is None or scan_only[i]] or list(
-                range(k - n_draw, k)
-            )
+            every = list(range(k - n_draw, k))
+            drawn = [i for i in every if scan_only is None or scan_only[i]] or every
             rows = qmc.LatinHypercube(d=len(drawn), seed=seed + 7919).random(scan)
 
             def scanned_from(start: FloatArray) -> list[FloatArray]:
