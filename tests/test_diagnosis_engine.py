@@ -2975,33 +2975,48 @@ def test_the_rule_on_the_measured_gap_judges_the_headlines_gaps(
     assert 1.0 - seen[1] / seen[0] > penalty
 
 
+def _asymmetry_leaves_measured_gap(
+    monkeypatch: pytest.MonkeyPatch, on_every: bool, factor: float = 1.0
+) -> list[tuple[str, ...]]:
+    """Make ``_measured_rms`` of fits with a motor asymmetry return the model before's value
+    on the same folds (the measured gap left as it was; times ``factor``): on the
+    validation experiments, and with ``on_every`` also judged on every experiment. Returns
+    the folds' validation experiments of every call (one name tuple per call)."""
+    import nanostage.diagnosis.loop as lp
+
+    real = lp._measured_rms
+    before: dict[tuple[tuple[str, ...], ...], float] = {}
+    calls: list[tuple[str, ...]] = []
+
+    def unchanged_by_asymmetry(ctx: Any, fits: Any) -> float:
+        key = tuple(tuple(e.name for e in v) for _, v in ctx.folds)
+        calls.append(tuple(n for k in key for n in k))
+        asym = any(
+            f.system.effects.motor_friction is not None
+            and f.system.effects.motor_friction.asymmetry != 0.0
+            for f in fits
+        )
+        if asym and key in before and (on_every or len(key) == 1):
+            return before[key] * factor
+        value = real(ctx, fits)
+        before.setdefault(key, value)
+        return value
+
+    monkeypatch.setattr(lp, "_measured_rms", unchanged_by_asymmetry)
+    return calls
+
+
 def test_a_pick_that_leaves_the_measured_gap_is_turned_down(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A round's pick whose fit shrinks the measured pooled validation gap by no more than
     its complexity penalty is not named, whatever the judging found: it is marked not
     significant with the reason, and the round picks again (here the hidden asymmetry's
-    candidate, made to leave the measured gap as it was). With the rule off it is named."""
-    import nanostage.diagnosis.loop as lp
-
+    candidate, made to leave the measured gap as it was, on the validation experiments and
+    judged on every experiment). With the rule off it is named."""
     m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
     m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
-    real = lp._measured_rms
-    before: list[float] = []
-
-    def unchanged_by_asymmetry(ctx: Any, fits: Any) -> float:
-        asym = any(
-            f.system.effects.motor_friction is not None
-            and f.system.effects.motor_friction.asymmetry != 0.0
-            for f in fits
-        )
-        if asym and before:
-            return before[0]
-        value = real(ctx, fits)
-        before.append(value)
-        return value
-
-    monkeypatch.setattr(lp, "_measured_rms", unchanged_by_asymmetry)
+    _asymmetry_leaves_measured_gap(monkeypatch, on_every=True)
     st = dc.replace(FAST, crossfit_folds=0, forward_rounds=1)
     r = diagnose(m, None, settings=st, progress=False).report
     assert "asymmetric_friction" not in r["selected"]
@@ -3009,6 +3024,11 @@ def test_a_pick_that_leaves_the_measured_gap_is_turned_down(
     assert not row["significant"]
     why = [w for w in row["why"] if w.startswith("the gap as measured")]
     assert len(why) == 1 and "shrink 0.0% ≤ complexity penalty 7%" in why[0], row["reasons"]
+    # Picked on every experiment (the default judging), the rule judged that too.
+    assert "; judged on every experiment, each held out once, the gap as measured goes" in why[0], (
+        why[0]
+    )
+    assert why[0].count("shrink 0.0% ≤ complexity penalty 7%") == 2, why[0]
     # Whatever the round picked instead passed the rule on its own measured gap.
     for name in r["selected"]:
         other = next(c for c in r["candidates"] if c["effect"] == name)
@@ -3017,6 +3037,67 @@ def test_a_pick_that_leaves_the_measured_gap_is_turned_down(
         m, None, settings=dc.replace(st, measured_shrink_rule=False), progress=False
     ).report
     assert off["selected"] == ["asymmetric_friction"]
+
+
+def test_a_pick_judged_on_every_experiment_stands_when_its_folds_shrink_the_measured_gap(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A pick made on every experiment whose own fit leaves the measured gap of the
+    validation experiments (one large step whose run-to-run level the judged gaps discount,
+    say) is named all the same when its folds' fits shrink the gap as measured over every
+    experiment, each held out once, by more than its complexity penalty: the rule judges
+    it in the terms it was picked in too. Without the judging on every experiment, the
+    validation experiments decide alone and it is turned down."""
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    calls = _asymmetry_leaves_measured_gap(monkeypatch, on_every=False)
+    st = dc.replace(FAST, crossfit_folds=0, forward_rounds=1)
+    r = diagnose(m, None, settings=st, progress=False).report
+    assert r["selected"] == ["asymmetric_friction"]
+    row = next(c for c in r["candidates"] if c["effect"] == "asymmetric_friction")
+    assert not any(w.startswith("the gap as measured") for w in row["why"]), row["why"]
+    # The report gives both measures: in the evidence and in report.json.
+    (rec,) = r["measured_on_every"]
+    assert rec["round"] == 1 and rec["effect"] == "asymmetric_friction"
+    assert "> complexity penalty 7%" in rec["every_experiment"], rec
+    assert "shrink 0.0% ≤ complexity penalty 7%" in rec["validation"], rec
+    (ev,) = r["evidence"]
+    assert any(
+        w.startswith("named on the gap as measured judged on every experiment") for w in ev["why"]
+    ), ev["why"]
+    # Both measures were taken: the validation experiments' (before, pick) and every
+    # experiment's, each held out once (before, pick).
+    every = sorted(n for f in load_manifest(m).splits() for n in [*f.train, *f.validate])
+    validation = [c for c in calls if len(c) < len(every)]
+    on_every = [c for c in calls if sorted(c) == every]
+    assert len(validation) == 2 and len(on_every) == 2, calls
+    calls.clear()
+    single = diagnose(m, None, settings=dc.replace(st, cross_judge_folds=0), progress=False).report
+    assert "asymmetric_friction" not in single["selected"]
+    assert single["measured_on_every"] == []
+    assert all(len(c) < len(every) for c in calls), calls
+
+
+def test_a_pick_whose_own_fit_widens_the_measured_gap_stays_turned_down(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The measure on every experiment does not rescue a pick whose own fit widens the
+    validation experiments' measured gap at all: the model the report carries would widen
+    the headline's gap by the effect it names. Here the asymmetry's own fit widens it by
+    2 % (within the 5 % the pooled-widening rule tolerates) while its folds' fits shrink the
+    gap over every experiment; it is turned down on the validation experiments' measure
+    alone."""
+    m = _case(tmp_path, Effects(motor_friction=FrictionModifiers(asymmetry=0.3)), seed=3)
+    m.write_text(m.read_text(encoding="utf-8").replace('"offset_force", ', ""))
+    _asymmetry_leaves_measured_gap(monkeypatch, on_every=False, factor=1.02)
+    st = dc.replace(FAST, crossfit_folds=0, forward_rounds=1)
+    r = diagnose(m, None, settings=st, progress=False).report
+    assert "asymmetric_friction" not in r["selected"]
+    assert r["measured_on_every"] == []
+    row = next(c for c in r["candidates"] if c["effect"] == "asymmetric_friction")
+    why = [w for w in row["why"] if w.startswith("the gap as measured")]
+    assert len(why) == 1 and "shrink -2.0% ≤ complexity penalty 7%" in why[0], row["why"]
+    assert "judged on every experiment" not in why[0]
 
 
 def test_turned_down_marks_each_named_candidate_once() -> None:

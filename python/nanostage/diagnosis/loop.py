@@ -582,6 +582,9 @@ def diagnose_experiments(
     extra_refits: list[dict[str, Any]] = []
     # Per round whose friction laws put right the speed marks the model before misses.
     mark_support: list[dict[str, Any]] = []
+    # Per round whose pick, judged on every experiment, was named on the measured gap over
+    # every experiment where its own fit left the validation experiments' measured gap.
+    measured_on_every: list[dict[str, Any]] = []
 
     def signature_chi_squares(tied: Sequence[CandidateResult]) -> list[tuple[float, int]]:
         # Judged on the marks the tied effects make: each tied model against itself with
@@ -800,8 +803,13 @@ def diagnose_experiments(
         # (:attr:`DiagnosisSettings.measured_shrink_rule`): they stay not significant
         # whatever a later judging of the round says, and the round picks again.
         unmeasured: dict[str, str] = {}
-        # The measured gap of the model before, once the round's first pick needs it.
+        # The measured gap of the model before, once the round's first pick needs it; and
+        # where the round is judged on every experiment, that judging's terms (its folds,
+        # the model before refitted on each, the candidates' results by name) and the
+        # measured gap of its model before over all the experiments.
         measured_before: float | None = None
+        every_terms: _EveryTerms | None = None
+        measured_every_before: float | None = None
         own: dict[str, CandidateResult] = {}
         on_judged = False
         while True:
@@ -842,7 +850,9 @@ def diagnose_experiments(
                     f"({len(cross_judge_split(n_all, st.cross_judge_folds))} folds)",
                     progress,
                 )
-                judged = _cross_judge(ctx, current, current_fits, pool) if pool else []
+                judged, every_terms = (
+                    _cross_judge(ctx, current, current_fits, pool) if pool else ([], None)
+                )
                 own.update({r.effect: r for r in results})
                 # The selection carries the round's own fit (the training experiments): an
                 # effect whose own fit does not differ from none, or widens the pooled
@@ -864,7 +874,40 @@ def diagnose_experiments(
                 break
             if measured_before is None:
                 measured_before = _measured_rms(ctx, current_fits)
-            reason = _measured_shrink_reason(ctx, measured_before, best, st)
+            reason, own_shrink = _measured_shrink_reason(ctx, measured_before, best, st)
+            if reason is not None and on_judged and every_terms is not None and own_shrink >= 0.0:
+                # Picked on every experiment: its folds' fits may shrink the gap as measured
+                # over all of them where its own fit leaves the validation experiments' gap
+                # (one large step, say, whose run-to-run level the judged gaps discount). An
+                # own fit that widens that gap at all stays turned down: the model the
+                # report carries never widens the headline's gap by the effect it names.
+                if measured_every_before is None:
+                    measured_every_before = _measured_rms(every_terms.ctx, every_terms.base)
+                rms1, shrink, penalty = _measured_shrink(
+                    every_terms.ctx, measured_every_before, every_terms.results[best.effect], st
+                )
+                on_every = (
+                    f"judged on every experiment, each held out once, the gap as measured "
+                    f"goes {measured_every_before * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink "
+                    f"{shrink:.1%} {'>' if shrink > penalty else '≤'} complexity penalty "
+                    f"{penalty:.0%}"
+                )
+                if shrink > penalty:
+                    measured_on_every.append(
+                        {
+                            "round": rnd + 1,
+                            "effect": best.effect,
+                            "every_experiment": on_every,
+                            "validation": reason,
+                        }
+                    )
+                    print_progress(
+                        f"  round {rnd + 1}: {best.effect} named: {on_every}; on the "
+                        f"validation experiments {reason}",
+                        progress,
+                    )
+                    break
+                reason = f"{reason}; {on_every}"
             if reason is None:
                 break
             print_progress(f"  round {rnd + 1}: {best.effect} turned down: {reason}", progress)
@@ -914,6 +957,7 @@ def diagnose_experiments(
         "signature_marks": signature_marks,
         "extra_refits": extra_refits,
         "speed_mark_support": mark_support,
+        "measured_on_every": measured_on_every,
         "cache": ctx.cache,
         "simulations": {
             "simulated": None if ctx.cache is None else ctx.cache.misses,
@@ -979,24 +1023,34 @@ def _measured_rms(ctx: _Ctx, fits: Sequence[Fit]) -> float:
     return math.sqrt(squares / n) if n else 0.0
 
 
+def _measured_shrink(
+    ctx: _Ctx, rms0: float, pick: CandidateResult, st: DiagnosisSettings
+) -> tuple[float, float, float]:
+    """The measured pooled gap of ``pick``'s fits (one per fold of ``ctx``, each on its
+    fold's validation experiments, :func:`_measured_rms`), its shrink of ``rms0`` (the model
+    before's, on the same folds) and the complexity penalty it must exceed
+    (:attr:`DiagnosisSettings.measured_shrink_rule`)."""
+    rms1 = _measured_rms(ctx, pick.fold_fits)
+    shrink = 1.0 - rms1 / rms0 if rms0 > 0.0 else 0.0
+    return rms1, shrink, st.penalty(pick.k_params)
+
+
 def _measured_shrink_reason(
     ctx: _Ctx, rms0: float, pick: CandidateResult, st: DiagnosisSettings
-) -> str | None:
+) -> tuple[str | None, float]:
     """Why the effect of ``pick`` cannot be named (its own fits shrink ``rms0``, the
     measured pooled validation gap of the model before (:func:`_measured_rms`), by no more
     than its complexity penalty, :attr:`DiagnosisSettings.measured_shrink_rule`), or None
-    when it can."""
-    rms1 = _measured_rms(ctx, pick.fold_fits)
-    shrink = 1.0 - rms1 / rms0 if rms0 > 0.0 else 0.0
-    penalty = st.penalty(pick.k_params)
+    when it can; and that shrink."""
+    rms1, shrink, penalty = _measured_shrink(ctx, rms0, pick, st)
     if shrink > penalty:
-        return None
+        return None, shrink
     return (
         f"the gap as measured (the reading pooled over the validation experiments, no "
         f"level-scatter discount) goes {rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink "
         f"{shrink:.1%} ≤ complexity penalty {penalty:.0%}: the effect does not explain the "
         "gap the report gives"
-    )
+    ), shrink
 
 
 def _calibrate_again(
@@ -1477,19 +1531,30 @@ def experiment_class(reference_m: npt.ArrayLike, count_m: float) -> int:
     return 1 if d.size and float(np.max(d)) <= MICRO_STEP_MAX_COUNTS * count_m else 2
 
 
+@dataclass(frozen=True)
+class _EveryTerms:
+    """The terms of a round judged on every experiment (:func:`_cross_judge`): its context
+    (``folds``: each experiment held out once), the model before refitted on each fold
+    (``base``) and the candidates' results by name (each with one fit per fold)."""
+
+    ctx: _Ctx
+    base: list[Fit]
+    results: dict[str, CandidateResult]
+
+
 def _cross_judge(
     ctx: _Ctx,
     current: System,
     current_fits: Sequence[Fit],
     pool: Sequence[tuple[Candidate, CandidateResult]],
-) -> list[CandidateResult]:
+) -> tuple[list[CandidateResult], _EveryTerms]:
     """The candidates of ``pool`` (each with its refitted result) judged again on every
     experiment, training ones included (:attr:`DiagnosisSettings.cross_judge_folds`): for
     each fold of :func:`cross_judge_split` the model before and each candidate are refitted
     by one local fit (from the model before's fitted free values, and from the candidate's
     fitted free and own values; a delay keeps its setting) on the other experiments, and
     judged by the same rules on the held-out ones. Returns the candidates' results in these
-    terms, best first by the ranking."""
+    terms, best first by the ranking, and the terms themselves (:class:`_EveryTerms`)."""
     st = ctx.st
     train, validate = ctx.folds[0]
     exps = [*train, *validate]
@@ -1506,7 +1571,7 @@ def _cross_judge(
     cj = dataclasses.replace(
         ctx, folds=folds, warm=[dict(base_warm) for _ in folds], family=len(pool)
     )
-    _, base_ms, _, base_cmd, base_units = cj.fit_and_validate(
+    base_fits, base_ms, _, base_cmd, base_units = cj.fit_and_validate(
         current, (), lambda s, v: s, 1, st.seed, local=True
     )
 
@@ -1545,7 +1610,7 @@ def _cross_judge(
         cj, _thread_map(one, pool, st.parallel_candidates), base_ms, base_cmd, base_units
     )
     out.sort(key=rank_key(st.ranking))
-    return out
+    return out, _EveryTerms(cj, list(base_fits), {r.effect: r for r in out})
 
 
 def _refit_control(

@@ -1093,6 +1093,7 @@ def markdown_report(
         "tie_signatures",
         "extra_refits",
         "speed_mark_support",
+        "measured_on_every",
         "cross_judged",
         "crossfit",
         "evidence",

@@ -1025,6 +1025,12 @@ def assemble_report(
             ev["why"] = [f"judged on every experiment: {w}" for w in selecting[i].reasons] + [
                 f"on the validation experiments alone: {w}" for w in r.reasons
             ]
+        ev["why"] = list(ev.get("why") or []) + [
+            f"named on the gap as measured {d['every_experiment']}; on the validation "
+            f"experiments alone {d['validation']}"
+            for d in out.get("measured_on_every") or []
+            if d["round"] == i + 1 and d["effect"] == name
+        ]
         evidence.append({"round": i + 1} | ev)
     floor = float(out["floor_rms_m"])
     total_after = float(after["total_rms_m"])
@@ -1071,6 +1077,9 @@ def assemble_report(
         # Per round whose friction laws put right the ramp marks the model before misses:
         # each such law and the share of those marks' χ² it removes.
         "speed_mark_support": [dict(d) for d in out.get("speed_mark_support") or []],
+        # Per round whose pick was named on the gap as measured over every experiment (its
+        # own fit left the validation experiments' measured gap): both measures.
+        "measured_on_every": [dict(d) for d in out.get("measured_on_every") or []],
         "gap_after": after,
         "gap_best_single": single,
         "best_single_effect": single_best.effect if single_best else None,
