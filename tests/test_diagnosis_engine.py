@@ -2860,14 +2860,15 @@ def test_a_cross_judged_tie_is_broken_on_the_rounds_own_fits(
 
     lp_pools: list[Any] = []
 
-    def all_tied(ctx: Any, current: Any, fits: Any, pool: Any) -> list[CandidateResult]:
+    def all_tied(ctx: Any, current: Any, fits: Any, pool: Any) -> tuple[Any, Any]:
         round_systems.extend(id(r.fit.system) for _, r in pool)
         lp_pools.append(pool)
-        out = real(ctx, current, fits, pool)
+        out, terms = real(ctx, current, fits, pool)
         fold_systems.extend(id(r.fit.system) for r in out)
         first = out[0]
         # Every candidate significant and as good as the first: a tie of all.
-        return [dc.replace(r, significant=True, validation_ms=first.validation_ms) for r in out]
+        tied = [dc.replace(r, significant=True, validation_ms=first.validation_ms) for r in out]
+        return tied, dc.replace(terms, results={r.effect: r for r in tied})
 
     seen: list[list[int]] = []
     real_tie = SignatureJudge.tie_chi_squares
@@ -2922,11 +2923,12 @@ def test_the_round_selects_by_the_cross_judged_results(
     real = lp._cross_judge
     chosen: list[str] = []
 
-    def other_wins(*a: Any, **kw: Any) -> list[CandidateResult]:
-        out = real(*a, **kw)
+    def other_wins(*a: Any, **kw: Any) -> tuple[Any, Any]:
+        out, terms = real(*a, **kw)
         if not chosen:
             chosen.append(next(r.effect for r in out if r.effect != "asymmetric_friction"))
-        return [dc.replace(r, significant=r.effect == chosen[0]) for r in out]
+        forced = [dc.replace(r, significant=r.effect == chosen[0]) for r in out]
+        return forced, dc.replace(terms, results={r.effect: r for r in forced})
 
     monkeypatch.setattr(lp, "_cross_judge", other_wins)
     # Without the level scatter: with it, a candidate's validation RMS is that of the gaps
