@@ -2868,7 +2868,7 @@ def test_a_cross_judged_tie_is_broken_on_the_rounds_own_fits(
         first = out[0]
         # Every candidate significant and as good as the first: a tie of all.
         tied = [dc.replace(r, significant=True, validation_ms=first.validation_ms) for r in out]
-        return tied, dc.replace(terms, results={r.effect: r for r in tied})
+        return tied, terms
 
     seen: list[list[int]] = []
     real_tie = SignatureJudge.tie_chi_squares
@@ -2927,8 +2927,7 @@ def test_the_round_selects_by_the_cross_judged_results(
         out, terms = real(*a, **kw)
         if not chosen:
             chosen.append(next(r.effect for r in out if r.effect != "asymmetric_friction"))
-        forced = [dc.replace(r, significant=r.effect == chosen[0]) for r in out]
-        return forced, dc.replace(terms, results={r.effect: r for r in forced})
+        return [dc.replace(r, significant=r.effect == chosen[0]) for r in out], terms
 
     monkeypatch.setattr(lp, "_cross_judge", other_wins)
     # Without the level scatter: with it, a candidate's validation RMS is that of the gaps

@@ -805,8 +805,8 @@ def diagnose_experiments(
         unmeasured: dict[str, str] = {}
         # The measured gap of the model before, once the round's first pick needs it; and
         # where the round is judged on every experiment, that judging's terms (its folds,
-        # the model before refitted on each, the candidates' results by name) and the
-        # measured gap of its model before over all the experiments.
+        # the model before refitted on each) and the measured gap of its model before over
+        # all the experiments.
         measured_before: float | None = None
         every_terms: _EveryTerms | None = None
         measured_every_before: float | None = None
@@ -883,16 +883,13 @@ def diagnose_experiments(
                 # report carries never widens the headline's gap by the effect it names.
                 if measured_every_before is None:
                     measured_every_before = _measured_rms(every_terms.ctx, every_terms.base)
-                rms1, shrink, penalty = _measured_shrink(
-                    every_terms.ctx, measured_every_before, every_terms.results[best.effect], st
+                on_every, passes = _measured_on_every(
+                    every_terms,
+                    measured_every_before,
+                    next(r for r in cross_judged[-1] if r.effect == best.effect),
+                    st,
                 )
-                on_every = (
-                    f"judged on every experiment, each held out once, the gap as measured "
-                    f"goes {measured_every_before * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink "
-                    f"{shrink:.1%} {'>' if shrink > penalty else '≤'} complexity penalty "
-                    f"{penalty:.0%}"
-                )
-                if shrink > penalty:
+                if passes:
                     measured_on_every.append(
                         {
                             "round": rnd + 1,
@@ -1033,6 +1030,22 @@ def _measured_shrink(
     rms1 = _measured_rms(ctx, pick.fold_fits)
     shrink = 1.0 - rms1 / rms0 if rms0 > 0.0 else 0.0
     return rms1, shrink, st.penalty(pick.k_params)
+
+
+def _measured_on_every(
+    terms: _EveryTerms, rms0: float, judged: CandidateResult, st: DiagnosisSettings
+) -> tuple[str, bool]:
+    """The measured-gap rule judged on every experiment: a sentence with the measured pooled
+    gap over every experiment, each held out once, of the model before (``rms0``) and of
+    ``judged`` (a pick's result in those terms), and whether it shrinks by more than the
+    complexity penalty."""
+    rms1, shrink, penalty = _measured_shrink(terms.ctx, rms0, judged, st)
+    passes = shrink > penalty
+    return (
+        f"judged on every experiment, each held out once, the gap as measured goes "
+        f"{rms0 * 1e9:.0f} → {rms1 * 1e9:.0f} nm, shrink {shrink:.1%} "
+        f"{'>' if passes else '≤'} complexity penalty {penalty:.0%}"
+    ), passes
 
 
 def _measured_shrink_reason(
@@ -1534,12 +1547,11 @@ def experiment_class(reference_m: npt.ArrayLike, count_m: float) -> int:
 @dataclass(frozen=True)
 class _EveryTerms:
     """The terms of a round judged on every experiment (:func:`_cross_judge`): its context
-    (``folds``: each experiment held out once), the model before refitted on each fold
-    (``base``) and the candidates' results by name (each with one fit per fold)."""
+    (``folds``: each experiment held out once) and the model before refitted on each fold
+    (``base``)."""
 
     ctx: _Ctx
     base: list[Fit]
-    results: dict[str, CandidateResult]
 
 
 def _cross_judge(
@@ -1610,7 +1622,7 @@ def _cross_judge(
         cj, _thread_map(one, pool, st.parallel_candidates), base_ms, base_cmd, base_units
     )
     out.sort(key=rank_key(st.ranking))
-    return out, _EveryTerms(cj, list(base_fits), {r.effect: r for r in out})
+    return out, _EveryTerms(cj, list(base_fits))
 
 
 def _refit_control(
